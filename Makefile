@@ -1,0 +1,37 @@
+# One-command set-up and the project's main jobs. Everything runs inside $(VENV),
+# created and installed on first use (torch pinned by constraints.txt).
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip install --quiet -c constraints.txt
+STAMP := $(VENV)/.installed
+
+.PHONY: test lint format demo clean-venv
+
+$(STAMP): pyproject.toml constraints.txt
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) --upgrade pip
+	$(PIP) -e '.[dev]'
+	touch $(STAMP)
+
+## test: create the virtual environment if needed, lint, run the whole test suite
+test: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(PY) -m pytest
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+format: $(STAMP)
+	$(VENV)/bin/ruff check --fix .
+	$(VENV)/bin/ruff format .
+
+## demo: generate a small dataset and write its preview montage
+demo: $(STAMP)
+	$(VENV)/bin/sdc-data generate --out data/demo --models 6 --views 2 --seed 0
+	$(VENV)/bin/sdc-data preview data/demo --count 6
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,81 @@
+"""Pictures a person reads at a glance: coloured depth, dilated LIDAR returns, montages.
+
+Used by the dataset preview, the client's preview and the evaluation gallery. OpenCV only.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def colorize_depth(
+    depth: np.ndarray, near: float | None = None, far: float | None = None
+) -> np.ndarray:
+    """BGR image of a depth map (metres): turbo colour map over the valid range, black = 0."""
+    valid = depth > 0
+    out = np.zeros((*depth.shape, 3), np.uint8)
+    if not np.any(valid):
+        return out
+    near = float(depth[valid].min()) if near is None else near
+    far = float(depth[valid].max()) if far is None else far
+    scaled = np.clip((depth - near) / max(far - near, 1e-6), 0, 1)
+    colored = cv2.applyColorMap((255 - scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+    out[valid] = colored[valid]
+    return out
+
+
+def dilated_returns(sparse: np.ndarray, radius: int = 3, near=None, far=None) -> np.ndarray:
+    """Sparse LIDAR returns drawn as coloured dots, so a person can see them."""
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    inverted = np.where(sparse > 0, 1000.0 - sparse, 0).astype(np.float32)  # near wins
+    grown = cv2.dilate(inverted, kernel)
+    return colorize_depth(np.where(grown > 0, 1000.0 - grown, 0), near, far)
+
+
+def gray_bgr(gray: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+
+
+def labelled(image: np.ndarray, text: str) -> np.ndarray:
+    """Copy of a BGR image with a caption in its top-left corner."""
+    out = image.copy()
+    scale = max(out.shape[1] / 700, 0.4)
+    cv2.putText(
+        out,
+        text,
+        (8, int(24 * scale)),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        scale,
+        (255, 255, 255),
+        max(1, int(2 * scale)),
+        cv2.LINE_AA,
+    )
+    return out
+
+
+def montage(rows: list[list[np.ndarray]], tile: int = 320, gap: int = 4) -> np.ndarray:
+    """Grid of BGR tiles, each resized to ``tile`` x ``tile``, with thin gaps."""
+    lines = []
+    for row in rows:
+        tiles = [cv2.resize(t, (tile, tile), interpolation=cv2.INTER_AREA) for t in row]
+        spaced = []
+        for t in tiles:
+            spaced += [t, np.full((tile, gap, 3), 40, np.uint8)]
+        lines.append(np.hstack(spaced[:-1]))
+        lines.append(np.full((gap, lines[-1].shape[1], 3), 40, np.uint8))
+    return np.vstack(lines[:-1])
+
+
+def object_crop(mask: np.ndarray, margin: float = 0.15, min_size: int = 96) -> tuple[slice, slice]:
+    """Square window around the foreground (or the whole image when there is none)."""
+    ys, xs = np.nonzero(mask)
+    h, w = mask.shape
+    if len(ys) == 0:
+        return slice(0, h), slice(0, w)
+    cy, cx = (ys.min() + ys.max()) / 2, (xs.min() + xs.max()) / 2
+    half = max(ys.max() - ys.min(), xs.max() - xs.min(), min_size) * (0.5 + margin)
+    half = min(half, max(h, w) / 2)
+    y0 = int(np.clip(cy - half, 0, max(h - 2 * half, 0)))
+    x0 = int(np.clip(cx - half, 0, max(w - 2 * half, 0)))
+    return slice(y0, int(y0 + 2 * half)), slice(x0, int(x0 + 2 * half))

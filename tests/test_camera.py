@@ -1,0 +1,34 @@
+import math
+
+import numpy as np
+import pytest
+
+from sdcnet.camera import PAPER_CAMERA
+
+
+def test_intrinsics_derive_from_table_1():
+    K = PAPER_CAMERA.intrinsics()
+    assert K.fx == pytest.approx(50 * 1024 / 6.449)
+    assert K.fx == pytest.approx(7939.2, abs=0.1)
+    assert (K.cx, K.cy) == (511.5, 511.5)
+    assert PAPER_CAMERA.fov_deg == pytest.approx(7.38, abs=0.01)
+
+
+def test_scaled_intrinsics_keep_the_field_of_view():
+    K = PAPER_CAMERA.intrinsics()
+    half = K.scaled(512, 512)
+    assert half.fx == pytest.approx(K.fx / 2)
+    assert (half.cx, half.cy) == (255.5, 255.5)
+    # the image edge sees the same angle at both resolutions
+    assert math.atan((0 - 0.5 - half.cx) / half.fx) == pytest.approx(
+        math.atan((-0.5 - K.cx) / K.fx)
+    )
+
+
+def test_project_inverts_pixel_rays():
+    K = PAPER_CAMERA.intrinsics()
+    u, v = np.array([0.0, 100.0, 1023.0]), np.array([5.0, 700.0, 1023.0])
+    points = K.pixel_rays(u, v) * 123.0
+    pu, pv = K.project(points)
+    np.testing.assert_allclose(pu, u)
+    np.testing.assert_allclose(pv, v)

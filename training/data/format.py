@@ -1,0 +1,110 @@
+"""On-disk dataset format, writer and torch-free reader.
+
+A dataset directory holds:
+
+- ``dataset.json``: how it was made (command, seed, counts, camera, LIDAR, scene ranges),
+  the model list with each model's split, and the format version;
+- ``manifest.jsonl``: one JSON line per sample (id, file, model, split, view, distance,
+  sun angle, pose, intrinsics, number of LIDAR returns, foreground pixels), sorted by id;
+- ``samples/<id>.npz``: one zip per sample, deflate-compressed (lossless), with
+  ``gray.npy`` (H x W uint8), ``depth.npy`` (H x W float32, camera-frame Z in metres,
+  0 = background), ``sparse.npy`` (H x W float32, LIDAR returns as Z in metres, 0 = none)
+  and ``meta.json`` (the sample's manifest line). The foreground mask is ``depth > 0``.
+
+Files are byte-for-byte reproducible: fixed zip timestamps, sorted keys, no wall-clock times.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+FORMAT_VERSION = 1
+ARRAYS = ("gray", "depth", "sparse")
+_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+
+
+def sample_id(model_id: int, view: int) -> str:
+    return f"m{model_id:04d}_v{view:03d}"
+
+
+@dataclass
+class Sample:
+    """One frame: inputs (gray, sparse) and ground truth (depth), with its metadata."""
+
+    gray: np.ndarray
+    sparse: np.ndarray
+    depth: np.ndarray
+    meta: dict
+
+    @property
+    def mask(self) -> np.ndarray:
+        """Ground-truth foreground (bool H x W)."""
+        return self.depth > 0
+
+
+def write_sample(path: Path, sample: Sample) -> None:
+    """Write atomically (temporary file, then rename) so an interrupted run leaves no half file."""
+    tmp = path.with_suffix(".tmp")
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=6) as zf:
+        for name in ARRAYS:
+            buffer = io.BytesIO()
+            np.lib.format.write_array(
+                buffer, np.ascontiguousarray(getattr(sample, name)), allow_pickle=False
+            )
+            zf.writestr(
+                zipfile.ZipInfo(f"{name}.npy", _ZIP_EPOCH), buffer.getvalue(), zipfile.ZIP_DEFLATED
+            )
+        meta = json.dumps(sample.meta, sort_keys=True).encode()
+        zf.writestr(zipfile.ZipInfo("meta.json", _ZIP_EPOCH), meta, zipfile.ZIP_DEFLATED)
+    os.replace(tmp, path)
+
+
+def read_sample(path: Path) -> Sample:
+    """Read one sample file; never unpickles."""
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {
+            name: npz[f"{name}.npy"] if f"{name}.npy" in npz.files else npz[name] for name in ARRAYS
+        }
+        meta = json.loads(npz["meta.json"])
+    return Sample(arrays["gray"], arrays["sparse"], arrays["depth"], meta)
+
+
+def is_complete(path: Path) -> bool:
+    """Whether a sample file exists and its zip directory is readable (for resuming)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return {f"{n}.npy" for n in ARRAYS} | {"meta.json"} <= set(zf.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+class SampleStore:
+    """Read access to a generated dataset directory (numpy only, no torch)."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        info = self.root / "dataset.json"
+        if not info.is_file():
+            raise FileNotFoundError(f"{self.root} is not an sdcnet dataset: no dataset.json")
+        self.info = json.loads(info.read_text())
+        manifest = self.root / "manifest.jsonl"
+        if not manifest.is_file():
+            raise FileNotFoundError(f"{manifest} is missing: generation did not finish")
+        self.records = [json.loads(line) for line in manifest.read_text().splitlines() if line]
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def split(self, name: str) -> list[dict]:
+        """Manifest records of one split ('train', 'val', 'test', or any custom split name)."""
+        return [r for r in self.records if r["split"] == name]
+
+    def load(self, record: dict) -> Sample:
+        return read_sample(self.root / record["file"])

@@ -1,0 +1,201 @@
+"""Dataset generation: deterministic per (seed, model, view), parallel, sharded, resumable."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from sdcnet.training.data.format import (
+    FORMAT_VERSION,
+    Sample,
+    SampleStore,
+    is_complete,
+    read_sample,
+    sample_id,
+    write_sample,
+)
+from sdcnet.training.data.lidar import scan
+from sdcnet.training.data.meshes import MeshEntry
+from sdcnet.training.data.render import PosedModel, render_camera
+from sdcnet.training.data.scene import SceneConfig, sample_scene
+from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file, procedural_spacecraft
+from tqdm import tqdm
+
+from sdcnet import __version__
+from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR, Intrinsics
+
+PAPER_SPLIT = (99, 9, 18)  # train / val / test models of 126 (paper sec. IV)
+SPLITS = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """Everything a dataset depends on. Workers and shards change speed, never content."""
+
+    models: int = 126
+    views: int = 64
+    size: int = 1024
+    seed: int = 0
+    split: tuple[int, int, int] | None = None  # models per split; default: paper ratios
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    meshes: tuple[MeshEntry, ...] = ()  # users' meshes, appended after the procedural models
+    mesh_split: str = "real"
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return PAPER_CAMERA.intrinsics().scaled(self.size, self.size)
+
+    def split_counts(self) -> tuple[int, int, int]:
+        if self.split is not None:
+            if sum(self.split) != self.models:
+                raise ValueError(f"split {self.split} does not add up to {self.models} models")
+            return self.split
+        return paper_split_counts(self.models)
+
+    def command(self) -> str:
+        """The command that regenerates this dataset (output directory aside)."""
+        parts = [
+            f"sdc-data generate --models {self.models} --views {self.views}",
+            f"--size {self.size} --seed {self.seed}",
+        ]
+        if self.split is not None:
+            parts.append("--split " + ",".join(map(str, self.split)))
+        return " ".join(parts)
+
+
+def paper_split_counts(models: int) -> tuple[int, int, int]:
+    """Models per split in the paper's 99:9:18 ratio, every split non-empty from 3 models."""
+    if models < 3:
+        return (models, 0, 0)
+    val = max(1, round(models * PAPER_SPLIT[1] / sum(PAPER_SPLIT)))
+    test = max(1, round(models * PAPER_SPLIT[2] / sum(PAPER_SPLIT)))
+    return (models - val - test, val, test)
+
+
+def model_splits(config: GenerateConfig) -> dict[int, str]:
+    """Split name of every model id; procedural models are shuffled by the seed."""
+    order = np.random.default_rng([config.seed, 0x5EED]).permutation(config.models)
+    counts = config.split_counts()
+    names = np.repeat(SPLITS, counts)
+    splits = {int(m): str(name) for m, name in zip(order, names, strict=True)}
+    for k in range(len(config.meshes)):
+        splits[config.models + k] = config.mesh_split
+    return splits
+
+
+def build_model(config: GenerateConfig, model_id: int) -> SpacecraftModel:
+    if model_id < config.models:
+        return procedural_spacecraft(config.seed, model_id)
+    entry = config.meshes[model_id - config.models]
+    return load_mesh_file(
+        entry.path, longest_m=entry.longest_m, scale=entry.scale, seed=config.seed
+    )
+
+
+def make_sample(
+    config: GenerateConfig, model: SpacecraftModel, model_id: int, view: int, split: str
+) -> Sample:
+    """Render one frame; depends only on (config, model, view)."""
+    K = config.intrinsics
+    scene = sample_scene(np.random.default_rng([config.seed, model_id, view, 1]), config.scene)
+    posed = PosedModel.place(model, scene)
+    frame = render_camera(posed, K, np.random.default_rng([config.seed, model_id, view, 2]))
+    sparse = scan(
+        posed.caster, PAPER_LIDAR, K, np.random.default_rng([config.seed, model_id, view, 3])
+    )
+    sid = sample_id(model_id, view)
+    meta = {
+        "id": sid,
+        "file": f"samples/{sid}.npz",
+        "model": model_id,
+        "model_name": model.name,
+        "split": split,
+        "view": view,
+        "intrinsics": K.as_dict(),
+        "returns": int(np.count_nonzero(sparse)),
+        "foreground_px": int(np.count_nonzero(frame.depth)),
+        "exposure": round(frame.exposure, 5),
+        **scene.metadata(),
+    }
+    return Sample(frame.gray, sparse, frame.depth, meta)
+
+
+_worker_cache: dict[int, SpacecraftModel] = {}
+
+
+def _generate_one(args: tuple[GenerateConfig, Path, int, int, str]) -> str:
+    config, out, model_id, view, split = args
+    if model_id not in _worker_cache:
+        _worker_cache.clear()  # tasks come grouped by model: keep one
+        _worker_cache[model_id] = build_model(config, model_id)
+    sample = make_sample(config, _worker_cache[model_id], model_id, view, split)
+    write_sample(out / sample.meta["file"], sample)
+    return sample.meta["id"]
+
+
+def dataset_info(config: GenerateConfig) -> dict:
+    splits = model_splits(config)
+    counts = config.split_counts()
+    return {
+        "format_version": FORMAT_VERSION,
+        "generator": f"sdcnet {__version__}",
+        "command": config.command(),
+        "seed": config.seed,
+        "models": config.models,
+        "views": config.views,
+        "size": config.size,
+        "split_models": dict(zip(SPLITS, counts, strict=True)),
+        "camera": asdict(PAPER_CAMERA),
+        "intrinsics": config.intrinsics.as_dict(),
+        "lidar": asdict(PAPER_LIDAR),
+        "scene": asdict(config.scene),
+        "user_meshes": [entry.describe() for entry in config.meshes],
+        "model_split": {str(k): v for k, v in sorted(splits.items())},
+    }
+
+
+def generate(
+    config: GenerateConfig,
+    out: Path,
+    workers: int = 1,
+    shard: tuple[int, int] = (0, 1),
+    progress: bool = True,
+) -> SampleStore | None:
+    """Write the samples of ``shard`` (index, count) that are missing; then, once every
+    sample of the dataset exists, the manifest. Returns the store when complete."""
+    out = Path(out)
+    (out / "samples").mkdir(parents=True, exist_ok=True)
+    info = dataset_info(config)
+    info_path = out / "dataset.json"
+    text = json.dumps(info, indent=1, sort_keys=True) + "\n"
+    if info_path.exists() and info_path.read_text() != text:
+        raise ValueError(f"{out} holds a dataset made with other settings; use another --out")
+    info_path.write_text(text)
+    splits = model_splits(config)
+    n_models = config.models + len(config.meshes)
+    tasks = [(config, out, m, v, splits[m]) for m in range(n_models) for v in range(config.views)]
+    index, count = shard
+    todo = [
+        t
+        for k, t in enumerate(tasks)
+        if k % count == index and not is_complete(out / "samples" / f"{sample_id(t[2], t[3])}.npz")
+    ]
+    bar = tqdm(total=len(todo), desc="samples", unit="smp", disable=not progress)
+    if workers > 1 and len(todo) > 1:
+        with mp.get_context("spawn").Pool(workers) as pool:
+            for _ in pool.imap_unordered(_generate_one, todo, chunksize=2):
+                bar.update()
+    else:
+        for task in todo:
+            _generate_one(task)
+            bar.update()
+    bar.close()
+    files = [out / "samples" / f"{sample_id(t[2], t[3])}.npz" for t in tasks]
+    if not all(is_complete(f) for f in files):
+        return None
+    lines = [json.dumps(read_sample(f).meta, sort_keys=True) for f in files]
+    (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+    return SampleStore(out)
