@@ -6,6 +6,8 @@ import json
 import numpy as np
 import pytest
 import trimesh
+
+from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR
 from sdcnet.training.data.format import SampleStore
 from sdcnet.training.data.generate import GenerateConfig, generate, model_splits
 from sdcnet.training.data.lidar import scan
@@ -19,8 +21,6 @@ from sdcnet.training.data.spacecraft import (
     load_mesh_file,
     procedural_spacecraft,
 )
-
-from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR
 
 K = PAPER_CAMERA.intrinsics()
 

@@ -8,6 +8,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
+
+from sdcnet import __version__
+from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR, Intrinsics
 from sdcnet.training.data.format import (
     FORMAT_VERSION,
     Sample,
@@ -22,10 +26,6 @@ from sdcnet.training.data.meshes import MeshEntry
 from sdcnet.training.data.render import PosedModel, render_camera
 from sdcnet.training.data.scene import SceneConfig, sample_scene
 from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file, procedural_spacecraft
-from tqdm import tqdm
-
-from sdcnet import __version__
-from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR, Intrinsics
 
 PAPER_SPLIT = (99, 9, 18)  # train / val / test models of 126 (paper sec. IV)
 SPLITS = ("train", "val", "test")

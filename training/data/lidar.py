@@ -9,9 +9,9 @@ surfaces return like lit ones. Each return lands on its nearest pixel as camera-
 from __future__ import annotations
 
 import numpy as np
-from sdcnet.training.data.raycast import RayCaster
 
 from sdcnet.camera import Intrinsics, LidarSpec
+from sdcnet.training.data.raycast import RayCaster
 
 
 def beam_directions(spec: LidarSpec, K: Intrinsics, rng: np.random.Generator) -> np.ndarray:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
+
 from sdcnet.training.data.materials import Material
 
 

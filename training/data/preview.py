@@ -6,8 +6,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from sdcnet.training.data.format import SampleStore
 
+from sdcnet.training.data.format import SampleStore
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,

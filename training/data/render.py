@@ -12,12 +12,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from sdcnet.camera import Intrinsics
 from sdcnet.training.data.materials import shading_arrays
 from sdcnet.training.data.raycast import RayCaster
 from sdcnet.training.data.scene import Scene
 from sdcnet.training.data.spacecraft import SpacecraftModel
-
-from sdcnet.camera import Intrinsics
 
 SHADOW_OFFSET_M = 0.003  # start shadow rays off the surface, above float32 noise at 280 m
 INTERCONNECT_FRACTION = 0.12  # share of a solar-cell pitch taken by the grid lines

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+
 from sdcnet.training.data import parts
 from sdcnet.training.data.materials import Material, Shading, jittered_shading
 from sdcnet.training.data.parts import Assembly, pose, rot

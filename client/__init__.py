@@ -1,0 +1,1 @@
+"""Client of the sdcnet service: Python API and the sdc-client command."""

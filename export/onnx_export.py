@@ -1,0 +1,151 @@
+"""Trace SDCNet (pre-fill + FSNet + FDCNet) to one self-contained ONNX graph, and check it.
+
+The parity check runs onnxruntime (CPU) against PyTorch on real generated frames at two sizes
+and batch 1 and 2, and fails the export when depth differs by more than 1 mm anywhere on the
+foreground or the foreground decisions agree on fewer than 99.99 % of pixels.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+
+from sdcnet import __version__
+from sdcnet.camera import PAPER_CAMERA
+from sdcnet.export.runtime import INPUTS, OUTPUTS, OnnxModel
+from sdcnet.training.model.sdcnet import SDCNet
+
+OPSET = 17
+MAX_DEPTH_ERROR_M = 1e-3
+MIN_MASK_AGREEMENT = 0.9999
+
+
+def model_metadata(
+    model: SDCNet, version: str, metrics: dict | None = None, extra: dict | None = None
+) -> dict:
+    """The metadata_props written into the file: all the service needs besides the graph."""
+    meta = {
+        "sdcnet_version": __version__,
+        "model_version": version,
+        "intrinsics": json.dumps(PAPER_CAMERA.intrinsics().as_dict()),
+        "training_size": str(PAPER_CAMERA.width),
+        "stride": str(model.config.stride),
+        "factor": str(model.config.factor),
+        "model_config": json.dumps(model.config.to_dict()),
+        "metrics": json.dumps(metrics or {}),
+        "inputs": json.dumps(
+            {
+                "gray": "float32 (B, 1, H, W) in [0, 1]: 8-bit / 255 or 16-bit / 65535",
+                "sparse": "float32 (B, 1, H, W) LIDAR camera-frame Z in metres, 0 = no return",
+            }
+        ),
+        "outputs": json.dumps(
+            {
+                "depth": "float32 (B, 1, H, W) camera-frame Z, metres (valid on the foreground)",
+                "foreground": "float32 (B, 1, H, W) probability that a pixel is spacecraft",
+            }
+        ),
+    }
+    meta.update(extra or {})
+    return meta
+
+
+def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Path:
+    """Write ``model`` as ONNX with dynamic batch, height and width; checked by onnx.checker."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model = model.eval().cpu()
+    example = (torch.rand(1, 1, 256, 256), torch.zeros(1, 1, 256, 256))
+    dynamic = {name: {0: "batch", 2: "height", 3: "width"} for name in (*INPUTS, *OUTPUTS)}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notices
+        torch.onnx.export(
+            model,
+            example,
+            str(path),
+            input_names=list(INPUTS),
+            output_names=list(OUTPUTS),
+            dynamic_axes=dynamic,
+            opset_version=OPSET,
+            dynamo=False,
+            do_constant_folding=True,
+        )
+    graph = onnx.load(str(path))
+    graph.producer_name = "sdcnet"
+    graph.producer_version = __version__
+    del graph.metadata_props[:]
+    for key, value in sorted(metadata.items()):
+        graph.metadata_props.add(key=key, value=value)
+    onnx.checker.check_model(graph, full_check=True)
+    onnx.save(graph, str(path))
+    return path
+
+
+@dataclass
+class ParityCase:
+    size: int
+    batch: int
+    max_depth_error_m: float
+    mask_agreement: float
+    foreground_px: int
+
+    @property
+    def passed(self) -> bool:
+        return (
+            self.max_depth_error_m <= MAX_DEPTH_ERROR_M
+            and self.mask_agreement >= MIN_MASK_AGREEMENT
+        )
+
+
+def parity_check(
+    model: SDCNet,
+    onnx_path: str | Path,
+    frames: list[tuple[np.ndarray, np.ndarray]],
+    sizes: tuple[int, ...] = (512, 1024),
+    batches: tuple[int, ...] = (1, 2),
+) -> list[ParityCase]:
+    """Compare onnxruntime (CPU) with PyTorch on (gray uint8, sparse) frames, centre-cropped to
+    each size. Needs at least max(batches) frames."""
+    session = OnnxModel(onnx_path, provider="CPUExecutionProvider")
+    model = model.eval().cpu()
+    cases = []
+    for size in sizes:
+        for batch in batches:
+            gray = (
+                np.stack([_centre(g, size) for g, _ in frames[:batch]])[:, None].astype(np.float32)
+                / 255
+            )
+            sparse = np.stack([_centre(s, size) for _, s in frames[:batch]])[:, None].astype(
+                np.float32
+            )
+            with torch.no_grad():
+                ref_depth, ref_prob = (
+                    t.numpy() for t in model(torch.from_numpy(gray), torch.from_numpy(sparse))
+                )
+            depth, prob = session.run(gray, sparse)
+            foreground = ref_prob > 0.5
+            error = np.abs(depth - ref_depth)[foreground | (prob > 0.5)]
+            cases.append(
+                ParityCase(
+                    size,
+                    batch,
+                    float(error.max()) if error.size else 0.0,
+                    float(np.mean((prob > 0.5) == foreground)),
+                    int(foreground.sum()),
+                )
+            )
+    return cases
+
+
+def _centre(image: np.ndarray, size: int) -> np.ndarray:
+    H, W = image.shape
+    if size > min(H, W):
+        raise ValueError(f"parity size {size} exceeds the {H} x {W} frames")
+    y, x = (H - size) // 2, (W - size) // 2
+    return image[y : y + size, x : x + size]

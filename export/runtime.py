@@ -1,0 +1,114 @@
+"""The exported model under onnxruntime: sessions, providers, metadata. No torch.
+
+Used by the service, the evaluation of exported files and the benchmarks.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from sdcnet.camera import Intrinsics
+
+INPUTS = ("gray", "sparse")
+OUTPUTS = ("depth", "foreground")
+PREFERRED_PROVIDERS = ("CUDAExecutionProvider", "CPUExecutionProvider")
+
+
+class ModelLoadError(RuntimeError):
+    """The model file is missing, unreadable, not ONNX, or not an sdcnet model."""
+
+
+def choose_providers(requested: str | None = None) -> list[str]:
+    """Execution providers to use: ``requested`` alone (must be available), else CUDA then CPU."""
+    available = ort.get_available_providers()
+    if requested:
+        name = (
+            requested
+            if requested.endswith("ExecutionProvider")
+            else f"{requested.upper()}ExecutionProvider"
+        )
+        name = {
+            "CUDAEXECUTIONPROVIDER": "CUDAExecutionProvider",
+            "CPUEXECUTIONPROVIDER": "CPUExecutionProvider",
+        }.get(name.upper(), name)
+        if name not in available:
+            raise ModelLoadError(
+                f"execution provider {requested!r} is not available here; available: {available}"
+            )
+        return [name]
+    return [p for p in PREFERRED_PROVIDERS if p in available]
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """What the ONNX file says about itself (its metadata_props)."""
+
+    version: str
+    intrinsics: Intrinsics
+    stride: int
+    factor: int
+    training_size: int
+    metrics: dict
+    raw: dict[str, str]
+
+
+def _info(session: ort.InferenceSession, path: Path) -> ModelInfo:
+    meta = session.get_modelmeta().custom_metadata_map
+    missing = {"sdcnet_version", "intrinsics", "stride"} - set(meta)
+    if missing:
+        raise ModelLoadError(f"{path} is not an sdcnet model: metadata lacks {sorted(missing)}")
+    names = (
+        tuple(i.name for i in session.get_inputs()),
+        tuple(o.name for o in session.get_outputs()),
+    )
+    if names != (INPUTS, OUTPUTS):
+        raise ModelLoadError(f"{path} has inputs/outputs {names}, expected {(INPUTS, OUTPUTS)}")
+    return ModelInfo(
+        version=meta.get("model_version", meta["sdcnet_version"]),
+        intrinsics=Intrinsics(**json.loads(meta["intrinsics"])),
+        stride=int(meta["stride"]),
+        factor=int(meta.get("factor", 1)),
+        training_size=int(meta.get("training_size", 1024)),
+        metrics=json.loads(meta.get("metrics", "{}")),
+        raw=dict(meta),
+    )
+
+
+class OnnxModel:
+    """An sdcnet ONNX model loaded once; ``run`` is the pipeline's model callable."""
+
+    def __init__(self, path: str | Path, provider: str | None = None, threads: int | None = None):
+        path = Path(path)
+        if not path.is_file():
+            raise ModelLoadError(f"model file not found: {path}")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads or len(os.sched_getaffinity(0))
+        options.inter_op_num_threads = 1
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        try:
+            self.session = ort.InferenceSession(
+                str(path), options, providers=choose_providers(provider)
+            )
+        except ModelLoadError:
+            raise
+        except Exception as exc:  # onnxruntime raises its own exception types for bad files
+            raise ModelLoadError(f"cannot load {path} as an ONNX model: {exc}") from exc
+        self.path = path
+        self.info = _info(self.session, path)
+        self.provider = self.session.get_providers()[0]
+        self.threads = options.intra_op_num_threads
+
+    @property
+    def stride(self) -> int:
+        return self.info.stride
+
+    def run(self, gray: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(B, 1, h, w) float32 gray in [0, 1] and sparse metres -> depth (m), probability."""
+        depth, prob = self.session.run(list(OUTPUTS), {"gray": gray, "sparse": sparse})
+        return depth, prob

@@ -1,0 +1,1 @@
+"""The shipped model (sdcnet.onnx) and its model card, found with importlib.resources."""

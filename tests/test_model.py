@@ -1,0 +1,137 @@
+"""SDCNet's building blocks, variants, losses, checkpoints and a few real training steps."""
+
+import numpy as np
+import pytest
+import torch
+
+from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
+from sdcnet.training.data.format import SampleStore
+from sdcnet.training.dataset import TileDataset
+from sdcnet.training.losses import foreground_depth_loss, segmentation_loss
+from sdcnet.training.model.cca import CrossChannelAttention
+from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
+from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet
+
+
+def lidar_like(batch: int, height: int, width: int, depth: float = 120.0) -> torch.Tensor:
+    sparse = torch.zeros(batch, 1, height, width)
+    sparse[:, :, 5::18, 3::12] = depth
+    return sparse
+
+
+def test_fsnet_has_about_five_thousand_parameters():
+    model = SDCNet()
+    n = sum(p.numel() for p in model.fsnet.parameters())
+    assert 4000 <= n <= 6500, n
+    assert sum(1 for m in model.fsnet.modules() if isinstance(m, torch.nn.Conv2d)) == 8
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_every_variant_accepts_odd_sizes_and_batches(variant):
+    torch.manual_seed(0)
+    model = SDCNet(VARIANTS[variant]).eval()
+    gray, sparse = torch.rand(2, 1, 77, 131), lidar_like(2, 77, 131)
+    with torch.no_grad():
+        depth, prob = model(gray, sparse)
+    assert depth.shape == prob.shape == (2, 1, 77, 131)
+    assert torch.isfinite(depth).all() and ((prob >= 0) & (prob <= 1)).all()
+
+
+@pytest.mark.parametrize("inputs", ["gray", "sparse", "both"])
+def test_fsnet_input_choices_of_table_4(inputs):
+    model = SDCNet(ModelConfig(fsnet_inputs=inputs)).eval()
+    with torch.no_grad():
+        _, prob = model(torch.rand(1, 1, 64, 64), lidar_like(1, 64, 64))
+    assert prob.shape == (1, 1, 64, 64)
+
+
+def test_cca_weights_and_attention_do_not_depend_on_input_size():
+    cca = CrossChannelAttention(16, grid=4, heads=4)
+    shapes = {k: v.shape for k, v in cca.state_dict().items()}
+    for size in ((16, 16), (32, 48), (64, 24)):
+        f_s, f_g = torch.rand(2, 16, *size), torch.rand(2, 16, *size)
+        assert cca.attention(f_s, f_g).shape == (2, 4, 16, 16)
+        assert cca(f_s, f_g).shape == (2, 16, *size)
+    assert {k: v.shape for k, v in cca.state_dict().items()} == shapes
+    assert cca.d_k == 48  # 3 features x 16 regions
+
+
+def test_prefill_fills_between_returns_and_near_wins():
+    sparse = lidar_like(1, 128, 128, depth=100.0)
+    sparse[0, 0, 5, 3] = 0
+    sparse[0, 0, 41, 39] = 60.0  # a nearer surface in one block
+    lr = near_wins_downsample(sparse, 4)
+    assert lr[0, 0, 10, 9] == 60.0
+    filled = MorphologicalPrefill()(lr)
+    inner = filled[0, 0, 4:28, 4:28]
+    assert (inner > 0).all(), "returns ~3 x 4.5 px apart at the working resolution are bridged"
+    assert inner.min() >= 59.9 and inner.max() <= 100.0
+
+
+def test_foreground_loss_ignores_pixels_outside_the_predicted_foreground():
+    gt = torch.full((1, 1, 8, 8), 100.0)
+    prob = torch.zeros(1, 1, 8, 8)
+    prob[..., :4] = 0.9
+    depth = torch.full((1, 1, 8, 8), 101.0, requires_grad=True)
+    loss = foreground_depth_loss(depth, prob, gt)
+    loss.backward()
+    assert loss.item() == pytest.approx(1.0)
+    assert (depth.grad[..., 4:] == 0).all() and (depth.grad[..., :4] != 0).all()
+    wild = depth.detach().clone()
+    wild[..., 4:] = -5000.0
+    assert foreground_depth_loss(wild, prob, gt).item() == pytest.approx(1.0)
+
+
+def test_segmentation_loss_is_bce():
+    gt = torch.tensor([[[[0.0, 50.0]]]])
+    prob = torch.tensor([[[[0.25, 0.5]]]])
+    expected = -(np.log(0.75) + np.log(0.5)) / 2
+    assert segmentation_loss(prob, gt).item() == pytest.approx(expected, rel=1e-5)
+
+
+def test_checkpoint_round_trip(tmp_path):
+    torch.manual_seed(1)
+    model = SDCNet(VARIANTS["fsnet+cca"]).eval()
+    save_checkpoint(tmp_path / "m.pt", model, note="x")
+    loaded, state = load_checkpoint(tmp_path / "m.pt")
+    assert loaded.config == model.config and state["note"] == "x"
+    gray, sparse = torch.rand(1, 1, 64, 64), lidar_like(1, 64, 64)
+    with torch.no_grad():
+        for a, b in zip(model(gray, sparse), loaded(gray, sparse), strict=True):
+            torch.testing.assert_close(a, b)
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="cannot read checkpoint"):
+        load_checkpoint(tmp_path / "bad.pt")
+
+
+def test_a_few_optimisation_steps_reduce_both_losses(tiny_dataset):
+    torch.manual_seed(0)
+    store = SampleStore(tiny_dataset)
+    data = TileDataset(store, store.records[:2], tile=128, stride=64)
+    batch = {k: torch.stack([data[i][k] for i in range(2)]) for k in ("gray", "sparse", "depth")}
+    assert (batch["depth"] > 0).any()
+    model = SDCNet()
+    seg = torch.optim.Adam(model.segmentation_parameters(), lr=1e-2)
+    losses = []
+    for _ in range(12):
+        _, prob = model(batch["gray"], batch["sparse"])
+        loss = segmentation_loss(prob, batch["depth"])
+        seg.zero_grad()
+        loss.backward()
+        seg.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.7 * losses[0]
+    seg_ids = set(map(id, model.segmentation_parameters()))
+    rest = [p for p in model.parameters() if id(p) not in seg_ids]
+    opt = torch.optim.Adam(rest, lr=3e-3)
+    model.fsnet.eval()
+    model.refiner.eval()
+    depth_losses = []
+    for _ in range(12):
+        depth, prob = model(batch["gray"], batch["sparse"])
+        loss = foreground_depth_loss(depth, prob.detach(), batch["depth"])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        depth_losses.append(loss.item())
+    assert depth_losses[-1] < 0.8 * depth_losses[0]

@@ -1,0 +1,73 @@
+"""Evaluation on a split with the paper's metrics, through PyTorch or the exported ONNX model.
+
+Every method runs through ``sdcnet.pipeline.complete`` on whole 1024 x 1024 frames, exactly as
+the service does: crop to the LIDAR-bounded region, infer, paste back.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+from tqdm import tqdm
+
+from sdcnet.metrics import MetricTable, frame_metrics
+from sdcnet.pipeline import ModelFn, complete
+from sdcnet.training.data.format import SampleStore
+from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
+from sdcnet.training.model.sdcnet import SDCNet
+
+
+def torch_model_fn(model: torch.nn.Module, device: torch.device | str = "cpu") -> ModelFn:
+    """Wrap a (gray, sparse) -> (depth, probability) module as a numpy callable."""
+    model = model.eval().to(device)
+
+    @torch.no_grad()
+    def run(gray: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        depth, prob = model(torch.from_numpy(gray).to(device), torch.from_numpy(sparse).to(device))
+        return depth.cpu().numpy(), prob.cpu().numpy()
+
+    return run
+
+
+class ClassicalFill(torch.nn.Module):
+    """The floor: the network's own morphological pre-fill alone, mask = filled pixels.
+
+    Same working resolution and kernels as inside SDCNet; nearest upsampling back.
+    """
+
+    def __init__(self, factor: int = 4):
+        super().__init__()
+        self.factor = factor
+        self.prefill = MorphologicalPrefill()
+
+    def forward(
+        self, gray: torch.Tensor, sparse: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        H, W = sparse.shape[-2:]
+        f = self.factor
+        padded = F.pad(sparse, (0, (f - W % f) % f, 0, (f - H % f) % f))
+        filled = self.prefill(near_wins_downsample(padded, f))
+        depth = F.interpolate(filled, scale_factor=f, mode="nearest")[..., :H, :W]
+        return depth, (depth > 0).to(depth.dtype)
+
+
+def evaluate_records(
+    model_fn: ModelFn,
+    store: SampleStore,
+    records: list[dict],
+    stride: int = 64,
+    progress: bool = True,
+    desc: str = "evaluate",
+) -> MetricTable:
+    """Per-image metrics of ``model_fn`` over ``records`` of ``store``."""
+    table = MetricTable()
+    for record in tqdm(records, desc=desc, unit="img", disable=not progress, leave=False):
+        sample = store.load(record)
+        result = complete(model_fn, sample.gray, sample.sparse, stride=stride)
+        table.add(frame_metrics(result.depth, result.mask, sample.depth))
+    return table
+
+
+def stride_of(model: torch.nn.Module) -> int:
+    return model.config.stride if isinstance(model, SDCNet) else 64

@@ -1,0 +1,145 @@
+"""SDCNet = morphological pre-fill + FSNet + FDCNet, built for a CPU latency budget.
+
+Input: gray (B, 1, H, W) in [0, 1] and sparse LIDAR depth (B, 1, H, W) in metres (0 = none),
+any H x W. Output: dense depth (B, 1, H, W) in metres and foreground probability (B, 1, H, W).
+
+To fit ~100 ms per 1024 x 1024 frame on two cores, the networks run at a working resolution
+``factor`` times below the input (the sparse map is downsampled keeping the nearest return),
+depth is upsampled bilinearly and the foreground logit is upsampled and refined against the
+full-resolution gray image. Depth is regressed relative to the mean LIDAR return of the image
+(d_ref) in units of ``depth_scale_m``, so the same weights serve 50 m and 250 m.
+Inputs are padded internally to the network's stride and the padding is cut off again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from sdcnet.training.model.fdcnet import FDCNet
+from sdcnet.training.model.fsnet import FSNet, MaskRefiner
+from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
+
+FSNET_INPUTS = ("both", "gray", "sparse")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture of one variant. Defaults: SDCNet as shipped."""
+
+    factor: int = 4  # working resolution = input / factor
+    widths: tuple[int, ...] = (8, 16, 32, 48)
+    fusion: str = "cca+sa"  # "cca+sa" (SDCNet), "cca", "sa", "guided" (GuideNet baseline)
+    use_fsnet: bool = True  # False: the baseline regresses depth everywhere, no segmentation
+    fsnet_inputs: str = "both"  # Table 4: "both", "gray", "sparse"
+    grid: int = 4  # CCA regions per side: M = grid^2 regions whatever the input size
+    heads: int = 4
+    depth_scale_m: float = 10.0
+
+    @property
+    def stride(self) -> int:
+        """Input sizes are padded to multiples of this."""
+        coarsest = 2 ** (len(self.widths) - 1)
+        return self.factor * max(coarsest, 4 * self.grid)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ModelConfig:
+        return cls(**{**d, "widths": tuple(d["widths"])})
+
+
+VARIANTS: dict[str, ModelConfig] = {
+    "sdcnet": ModelConfig(),
+    "baseline": ModelConfig(fusion="guided", use_fsnet=False),  # GuideNet-style, no FSNet
+    "fsnet": ModelConfig(fusion="guided"),  # baseline + FSNet
+    "fsnet+cca": ModelConfig(fusion="cca"),
+    "fsnet+sa": ModelConfig(fusion="sa"),
+}
+
+
+class SDCNet(nn.Module):
+    def __init__(self, config: ModelConfig = ModelConfig()):
+        super().__init__()
+        if config.fsnet_inputs not in FSNET_INPUTS:
+            raise ValueError(f"fsnet_inputs must be one of {FSNET_INPUTS}")
+        self.config = config
+        self.prefill = MorphologicalPrefill()
+        fs_channels = {"both": 3, "gray": 1, "sparse": 2}[config.fsnet_inputs]
+        self.fsnet = FSNet(fs_channels) if config.use_fsnet else None
+        self.refiner = MaskRefiner() if config.use_fsnet else None
+        self.fdcnet = FDCNet(2, config.widths, config.fusion, config.grid, config.heads)
+
+    def segmentation_parameters(self) -> list[nn.Parameter]:
+        """Stage 1 trains these; stage 2 freezes them."""
+        if self.fsnet is None:
+            return []
+        return [*self.fsnet.parameters(), *self.refiner.parameters()]
+
+    def reference_depth(self, sparse_lr: torch.Tensor) -> torch.Tensor:
+        """Mean LIDAR return per image (B, 1, 1, 1) metres; 0 when there is none."""
+        total = sparse_lr.sum(dim=(2, 3), keepdim=True)
+        count = (sparse_lr > 0).to(sparse_lr.dtype).sum(dim=(2, 3), keepdim=True)
+        return total / count.clamp_min(1.0)
+
+    def _prepare(self, gray: torch.Tensor, sparse: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Padded full-resolution gray, working-resolution inputs and the reference depth."""
+        H, W = gray.shape[-2:]
+        s, f = self.config.stride, self.config.factor
+        pad = (0, (s - W % s) % s, 0, (s - H % s) % s)
+        gray_p, sparse_p = F.pad(gray, pad), F.pad(sparse, pad)
+        sparse_lr = near_wins_downsample(sparse_p, f)
+        return {
+            "gray": gray_p,
+            "gray_lr": F.avg_pool2d(gray_p, f),
+            "sparse_lr": sparse_lr,
+            "d_ref": self.reference_depth(sparse_lr),
+        }
+
+    def _segment(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Foreground probability at full (padded) resolution."""
+        returns = (x["sparse_lr"] > 0).to(x["gray"].dtype)
+        relative = returns * (x["sparse_lr"] - x["d_ref"]) / self.config.depth_scale_m
+        fs_in = {
+            "both": [x["gray_lr"], returns, relative],
+            "gray": [x["gray_lr"]],
+            "sparse": [returns, relative],
+        }[self.config.fsnet_inputs]
+        logit_lr = self.fsnet(torch.cat(fs_in, 1))
+        logit = F.interpolate(
+            logit_lr, scale_factor=self.config.factor, mode="bilinear", align_corners=False
+        )
+        return torch.sigmoid(self.refiner(x["gray"], logit))
+
+    def _regress(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Dense depth in metres at full (padded) resolution."""
+        scale = self.config.depth_scale_m
+        filled = self.prefill(x["sparse_lr"])
+        valid = (filled > 0).to(filled.dtype)
+        depth_in = torch.cat([valid * (filled - x["d_ref"]) / scale, valid], 1)
+        depth_lr = x["d_ref"] + scale * self.fdcnet(x["gray_lr"], depth_in)
+        return F.interpolate(
+            depth_lr, scale_factor=self.config.factor, mode="bilinear", align_corners=False
+        )
+
+    def segment(self, gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
+        """Foreground probability (B, 1, H, W) alone: what stage 1 trains, at a fraction of
+        the cost of the whole network."""
+        H, W = gray.shape[-2:]
+        return self._segment(self._prepare(gray, sparse))[..., :H, :W]
+
+    def forward(
+        self, gray: torch.Tensor, sparse: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        H, W = gray.shape[-2:]
+        x = self._prepare(gray, sparse)
+        depth = self._regress(x)
+        if self.fsnet is not None:
+            prob = self._segment(x)
+        else:  # no segmentation: foreground where the regressed depth is not background
+            prob = (depth > 0.5 * x["d_ref"]).to(depth.dtype)
+        return depth[..., :H, :W], prob[..., :H, :W]

@@ -1,0 +1,352 @@
+"""Two-stage training of SDCNet (paper sec. V-A), on one CPU, one GPU or many (torchrun).
+
+Stage 1 trains FSNet (and the mask refiner) with BCE; stage 2 freezes them and trains the
+rest with L1 on the predicted foreground. Adam, lr 1e-3, weight decay 1e-3, cosine decay per
+stage. Every epoch: validation on the val split with all six metrics, a CSV log line, a
+learning-curve plot, ``last.pt`` (to resume) and ``best.pt`` (best val MATE; stage 1: IOU).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shlex
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import distributed as dist
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, DistributedSampler, Subset
+from tqdm import tqdm
+
+from sdcnet.metrics import NAMES
+from sdcnet.training.checkpoint import save_checkpoint
+from sdcnet.training.data.format import SampleStore
+from sdcnet.training.dataset import TileDataset
+from sdcnet.training.evaluate import evaluate_records, torch_model_fn
+from sdcnet.training.losses import dense_depth_loss, foreground_depth_loss, segmentation_loss
+from sdcnet.training.model.sdcnet import VARIANTS, SDCNet
+
+
+class Segmenter(torch.nn.Module):
+    """SDCNet's segmentation path as a module of its own, so DistributedDataParallel
+    synchronises stage 1's gradients through its forward."""
+
+    def __init__(self, model: SDCNet):
+        super().__init__()
+        self.model = model
+
+    def forward(self, gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
+        return self.model.segment(gray, sparse)
+
+
+@dataclass
+class TrainConfig:
+    """One training run. ``preset`` fills the recipe; any field can be overridden."""
+
+    data: str
+    out: str
+    variant: str = "sdcnet"
+    fsnet_inputs: str = "both"
+    fsnet_epochs: int = 30
+    epochs: int = 50
+    batch_size: int = 8
+    tile: int = 512
+    lr: float = 1e-3
+    weight_decay: float = 1e-3
+    samples_per_epoch: int | None = None  # None: the whole train split every epoch
+    val_samples: int | None = None  # None: the whole val split
+    workers: int = 2
+    seed: int = 0
+    init_segmentation: str | None = None  # reuse stage 1 of another run (its checkpoint)
+    command: str = field(default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]))
+
+
+PRESETS: dict[str, dict] = {
+    # The paper's recipe (sec. V-A), for a GPU.
+    "paper": {"fsnet_epochs": 30, "epochs": 50, "batch_size": 8, "tile": 512},
+    # About an hour on two CPU cores: fewer, smaller tiles centred on the spacecraft.
+    "cpu": {
+        "fsnet_epochs": 6,
+        "epochs": 14,
+        "batch_size": 8,
+        "tile": 320,
+        "samples_per_epoch": 1600,
+        "val_samples": 90,
+        "workers": 1,
+    },
+    # Seconds: for tests and smoke runs.
+    "smoke": {
+        "fsnet_epochs": 1,
+        "epochs": 1,
+        "batch_size": 2,
+        "tile": 128,
+        "samples_per_epoch": 4,
+        "val_samples": 2,
+        "workers": 0,
+    },
+}
+
+
+def config_from_preset(preset: str, **overrides) -> TrainConfig:
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+    return TrainConfig(
+        **{**PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None}}
+    )
+
+
+def _distributed() -> tuple[int, int, torch.device]:
+    """(rank, world size, device); initialises torch.distributed under torchrun."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    cuda = torch.cuda.is_available()
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if cuda else "gloo")
+    rank = dist.get_rank() if world > 1 else 0
+    local = int(os.environ.get("LOCAL_RANK", "0"))
+    device = torch.device(f"cuda:{local}") if cuda else torch.device("cpu")
+    if cuda:
+        torch.cuda.set_device(device)
+    return rank, world, device
+
+
+class Trainer:
+    def __init__(self, config: TrainConfig):
+        self.config = config
+        self.rank, self.world, self.device = _distributed()
+        self.out = Path(config.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        torch.manual_seed(config.seed)
+        self.store = SampleStore(config.data)
+        train = self.store.split("train")
+        if not train:
+            raise ValueError(f"{config.data} has no 'train' samples")
+        self.val_records = self.store.split("val") or train[:2]
+        if config.val_samples:
+            step = max(1, len(self.val_records) // config.val_samples)
+            self.val_records = self.val_records[::step][: config.val_samples]
+        variant = VARIANTS.get(config.variant)
+        if variant is None:
+            raise ValueError(
+                f"unknown variant {config.variant!r}; choose one of {sorted(VARIANTS)}"
+            )
+        self.model = SDCNet(replace(variant, fsnet_inputs=config.fsnet_inputs)).to(self.device)
+        self.train_set = TileDataset(
+            self.store,
+            train,
+            config.tile,
+            augment=True,
+            seed=config.seed,
+            stride=self.model.config.stride,
+        )
+        self.state = {"stage": 1 if self.model.fsnet is not None else 2, "epoch": 0, "best": None}
+        self.history: list[dict] = []
+
+    # --- bookkeeping ---------------------------------------------------------------------
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    def _provenance(self) -> dict:
+        return {
+            "train_config": asdict(self.config),
+            "dataset": {
+                k: self.store.info[k]
+                for k in ("command", "seed", "models", "views", "size", "split_models")
+            },
+        }
+
+    def _save(self, name: str, optimizer, scheduler) -> None:
+        if self.is_main:
+            save_checkpoint(
+                self.out / name,
+                self.model,
+                state=self.state,
+                history=self.history,
+                optimizer=optimizer.state_dict(),
+                scheduler=scheduler.state_dict(),
+                **self._provenance(),
+            )
+
+    def _log(self, row: dict) -> None:
+        self.history.append(row)
+        if not self.is_main:
+            return
+        path = self.out / "log.csv"
+        new = not path.exists()
+        with path.open("a", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(row))
+            if new:
+                writer.writeheader()
+            writer.writerow(row)
+        from sdcnet.training.plots import learning_curves
+
+        learning_curves(self.history, self.out / "learning_curves.png")
+
+    # --- the two stages ------------------------------------------------------------------
+
+    def _stage_setup(self, stage: int):
+        seg = set(map(id, self.model.segmentation_parameters()))
+        for p in self.model.parameters():
+            p.requires_grad = (id(p) in seg) == (stage == 1)
+        params = [p for p in self.model.parameters() if p.requires_grad]
+        epochs = self.config.fsnet_epochs if stage == 1 else self.config.epochs
+        optimizer = torch.optim.Adam(
+            params, lr=self.config.lr, weight_decay=self.config.weight_decay
+        )
+        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
+            optimizer, max(epochs, 1), eta_min=self.config.lr / 100
+        )
+        return optimizer, scheduler, epochs
+
+    def _loader(self, epoch: int) -> DataLoader:
+        self.train_set.epoch = epoch
+        n = len(self.train_set)
+        dataset = self.train_set
+        if self.config.samples_per_epoch and self.config.samples_per_epoch < n:
+            rng = np.random.default_rng([self.config.seed, epoch])
+            dataset = Subset(
+                self.train_set, rng.choice(n, self.config.samples_per_epoch, replace=False).tolist()
+            )
+        sampler = DistributedSampler(dataset, seed=self.config.seed) if self.world > 1 else None
+        if sampler is not None:
+            sampler.set_epoch(epoch)
+        generator = torch.Generator().manual_seed(self.config.seed * 1000 + epoch)
+        return DataLoader(
+            dataset,
+            self.config.batch_size,
+            shuffle=sampler is None,
+            sampler=sampler,
+            num_workers=self.config.workers,
+            drop_last=len(dataset) > self.config.batch_size,
+            generator=generator,
+            persistent_workers=False,
+        )
+
+    def _loss(self, stage: int, batch: dict[str, torch.Tensor], net) -> torch.Tensor:
+        if stage == 1:  # net is a Segmenter
+            return segmentation_loss(net(batch["gray"], batch["sparse"]), batch["depth"])
+        depth, prob = net(batch["gray"], batch["sparse"])
+        if self.model.fsnet is None:
+            return dense_depth_loss(depth, batch["depth"])
+        return foreground_depth_loss(depth, prob, batch["depth"])
+
+    def _train_epoch(self, stage: int, epoch: int, optimizer, net) -> float:
+        self.model.train()
+        if stage == 2 and self.model.fsnet is not None:  # frozen: keep its batch-norm statistics
+            self.model.fsnet.eval()
+            self.model.refiner.eval()
+        losses = []
+        bar = tqdm(
+            self._loader(epoch),
+            desc=f"stage {stage} epoch {epoch + 1}",
+            unit="batch",
+            disable=not self.is_main,
+            leave=False,
+        )
+        for batch in bar:
+            batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
+            loss = self._loss(stage, batch, net)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            losses.append(float(loss))
+            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
+        return float(np.mean(losses)) if losses else float("nan")
+
+    def validate(self) -> dict[str, float]:
+        table = evaluate_records(
+            torch_model_fn(self.model, self.device),
+            self.store,
+            self.val_records,
+            stride=self.model.config.stride,
+            progress=self.is_main,
+            desc="validate",
+        )
+        return table.mean()
+
+    def _resume(self) -> tuple[dict | None, dict | None]:
+        path = self.out / "last.pt"
+        if not path.exists():
+            return None, None
+        state = torch.load(path, map_location=self.device, weights_only=True)
+        self.model.load_state_dict(state["model"])
+        self.state, self.history = state["state"], state["history"]
+        return state["optimizer"], state["scheduler"]
+
+    def _init_segmentation(self) -> None:
+        state = torch.load(
+            self.config.init_segmentation, map_location=self.device, weights_only=True
+        )
+        own = self.model.state_dict()
+        seg = {
+            k: v
+            for k, v in state["model"].items()
+            if k.startswith(("fsnet.", "refiner.")) and k in own
+        }
+        self.model.load_state_dict({**own, **seg})
+        self.state["stage"] = 2
+
+    def fit(self, resume: bool = True) -> Path:
+        optimizer_state, scheduler_state = self._resume() if resume else (None, None)
+        if (
+            optimizer_state is None
+            and self.config.init_segmentation
+            and self.model.fsnet is not None
+        ):
+            self._init_segmentation()
+        while self.state["stage"] <= 2:
+            stage = self.state["stage"]
+            optimizer, scheduler, epochs = self._stage_setup(stage)
+            if optimizer_state is not None:
+                optimizer.load_state_dict(optimizer_state)
+                scheduler.load_state_dict(scheduler_state)
+                optimizer_state = scheduler_state = None
+            net = Segmenter(self.model) if stage == 1 else self.model
+            if self.world > 1:
+                net = DistributedDataParallel(
+                    net, device_ids=[self.device] if self.device.type == "cuda" else None
+                )
+            while self.state["epoch"] < epochs:
+                epoch = self.state["epoch"]
+                started = time.perf_counter()
+                train_loss = self._train_epoch(stage, epoch, optimizer, net)
+                lr = optimizer.param_groups[0]["lr"]
+                scheduler.step()
+                metrics = self.validate() if self.is_main else {}
+                self.state["epoch"] += 1
+                row = {
+                    "stage": stage,
+                    "epoch": epoch + 1,
+                    "train_loss": round(train_loss, 5),
+                    **{k: round(metrics.get(k, float("nan")), 5) for k in NAMES},
+                    "lr": lr,
+                    "seconds": round(time.perf_counter() - started, 1),
+                }
+                self._log(row)
+                score = (
+                    -metrics.get("IOU", 0.0) if stage == 1 else metrics.get("MATE", float("inf"))
+                )
+                if self.is_main and (self.state["best"] is None or score < self.state["best"]):
+                    self.state["best"] = score
+                    self._save("best_stage1.pt" if stage == 1 else "best.pt", optimizer, scheduler)
+                self._save("last.pt", optimizer, scheduler)
+                if self.world > 1:
+                    dist.barrier()
+            if stage == 1:  # stage 2 starts from the best segmentation
+                best = torch.load(
+                    self.out / "best_stage1.pt", map_location=self.device, weights_only=True
+                )
+                self.model.load_state_dict(best["model"])
+            self.state = {"stage": stage + 1, "epoch": 0, "best": None}
+        if self.is_main:
+            (self.out / "train_config.json").write_text(
+                json.dumps(asdict(self.config), indent=1) + "\n"
+            )
+        return self.out / "best.pt"
