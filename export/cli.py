@@ -19,7 +19,9 @@ from sdcnet.export.onnx_export import (
     model_metadata,
     parity_check,
 )
+from sdcnet.export.variants import to_fp16, to_int8
 from sdcnet.training.checkpoint import load_checkpoint
+from sdcnet.training.data.format import SampleStore
 from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
 
 
@@ -46,6 +48,18 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument(
         "--parity-seed", type=int, default=2024, help="seed of the rendered parity frames"
+    )
+    p.add_argument(
+        "--variants",
+        nargs="*",
+        default=[],
+        choices=["fp16", "int8"],
+        help="also write OUT with .fp16.onnx / .int8.onnx suffixes",
+    )
+    p.add_argument(
+        "--calibration-data",
+        type=Path,
+        help="dataset whose train split calibrates INT8 (default: 32 rendered frames)",
     )
     args = p.parse_args(argv)
     try:
@@ -88,7 +102,26 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
+    for name in args.variants:
+        target = args.out.with_suffix(f".{name}.onnx")
+        if name == "fp16":
+            to_fp16(args.out, target)
+        else:
+            to_int8(
+                args.out, target, calibration_frames(args.calibration_data), model.config.stride
+            )
+        print(f"wrote {target} ({target.stat().st_size / 1e6:.2f} MB)")
     return 0
+
+
+def calibration_frames(data: Path | None, count: int = 32) -> list:
+    """INT8 calibration frames: spread over a dataset's train split, or rendered (seeded)."""
+    if data is None:
+        return parity_frames(seed=4096, count=count)
+    store = SampleStore(data)
+    records = store.split("train")
+    picked = records[:: max(1, len(records) // count)][:count]
+    return [(s.gray, s.sparse) for s in map(store.load, picked)]
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import platform
 import shlex
 import sys
 import time
@@ -93,6 +94,22 @@ PRESETS: dict[str, dict] = {
 }
 
 
+def _cpu_name() -> str:
+    cpuinfo = Path("/proc/cpuinfo")
+    lines = cpuinfo.read_text().splitlines() if cpuinfo.exists() else []
+    names = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
+    return names[0] if names else platform.processor() or "unknown CPU"
+
+
+def hardware_description(device: torch.device, world: int) -> str:
+    """What trained the model, for the model card."""
+    if device.type == "cuda":
+        what = torch.cuda.get_device_name(device)
+    else:
+        what = f"{_cpu_name()}, {torch.get_num_threads()} threads"
+    return f"{world} x {what}, torch {torch.__version__}"
+
+
 def config_from_preset(preset: str, **overrides) -> TrainConfig:
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
@@ -155,6 +172,7 @@ class Trainer:
 
     def _provenance(self) -> dict:
         return {
+            "hardware": hardware_description(self.device, self.world),
             "train_config": asdict(self.config),
             "dataset": {
                 k: self.store.info[k]

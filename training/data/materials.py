@@ -47,6 +47,11 @@ BASE_SHADING: dict[Material, Shading] = {
 }
 
 
+#: Albedo jitter per material (factor range); solar arrays range from near-black to the grey of
+#: arrays seen at grazing sun or with bright cover glass.
+ALBEDO_JITTER: dict[Material, tuple[float, float]] = {Material.SOLAR_CELL: (0.6, 3.0)}
+
+
 def jittered_shading(rng: np.random.Generator) -> list[Shading]:
     """Per-model variation of every material, indexed by ``Material`` value."""
     table = []
@@ -55,7 +60,14 @@ def jittered_shading(rng: np.random.Generator) -> list[Shading]:
         table.append(
             replace(
                 base,
-                albedo=float(np.clip(base.albedo * rng.uniform(0.7, 1.3), 0.02, 0.95)),
+                albedo=float(
+                    np.clip(
+                        base.albedo * rng.uniform(*ALBEDO_JITTER.get(material, (0.7, 1.3))),
+                        0.02,
+                        0.95,
+                    )
+                ),
+                grid_albedo=base.grid_albedo * rng.uniform(0.5, 1.5),
                 specular=float(np.clip(base.specular * rng.uniform(0.6, 1.4), 0.0, 0.9)),
                 shininess=float(base.shininess * rng.uniform(0.6, 1.6)),
                 crinkle=base.crinkle * rng.uniform(0.6, 1.5),

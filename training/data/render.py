@@ -164,14 +164,15 @@ def render_camera(posed: PosedModel, K: Intrinsics, rng: np.random.Generator) ->
         radiance[v0:v1, u0:u1] = values.reshape(vv.shape)
         depth[v0:v1, u0:u1] = z.reshape(vv.shape)
     stars = _stars(rng, H, W) * (depth == 0)
-    exposure = rng.uniform(0.7, 1.4) / 0.8  # a lit white surface lands at 70-140 % of full scale
+    exposure = rng.uniform(0.5, 1.6) / 0.8  # a lit white surface lands at 50-160 % of full scale
     signal = (radiance + stars) * exposure
-    sigma = rng.uniform(0.4, 0.9) * W / 1024
+    sigma = rng.uniform(0.3, 1.2) * W / 1024
     signal = cv2.GaussianBlur(signal, (0, 0), sigma)
     full_well = rng.uniform(5000, 20000)  # electrons at full scale: sets the shot noise
     signal = np.clip(signal, 0, None)
     signal = rng.poisson(signal * full_well) / full_well
-    encoded = np.clip(signal, 0, 1) ** (1 / 2.2) * 255
-    encoded += rng.normal(0, rng.uniform(0.3, 1.5), encoded.shape)  # read noise, in DN
+    gamma = rng.choice([2.2, 2.2, 1.8, 1.0])  # sRGB-like, softer, or a linear (raw) camera
+    encoded = np.clip(signal, 0, 1) ** (1 / gamma) * 255
+    encoded += rng.normal(0, rng.uniform(0.3, 2.5), encoded.shape)  # read noise, in DN
     gray = np.clip(np.round(encoded), 0, 255).astype(np.uint8)
     return CameraFrame(gray, depth, float(exposure))

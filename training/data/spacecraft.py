@@ -155,6 +155,8 @@ def _add_dishes(sc: Assembly, bus: _Bus, rng: np.random.Generator, archetype: st
     for k in range(count):
         big = archetype == "probe" and k == 0
         diameter = rng.uniform(2.0, 4.0) if big else rng.uniform(0.4, 2.2)
+        if archetype == "comsat" and rng.random() < 0.4:  # large reflectors (TDRS-like)
+            diameter = rng.uniform(2.5, 4.5)
         if archetype == "smallsat":
             diameter = rng.uniform(0.3, 0.7)
         depth = diameter * rng.uniform(0.08, 0.25)
@@ -182,6 +184,11 @@ def _add_appendages(sc: Assembly, bus: _Bus, rng: np.random.Generator, archetype
         d = random_direction()
         p = _surface_point(bus, d, rng)
         m, T = parts.rod_between(p, p + d * rng.uniform(0.5, 3.0), rng.uniform(0.01, 0.04))
+        sc.add(m, rng.choice([Material.METAL, Material.DARK, Material.WHITE_PAINT]), T)
+    if rng.random() < 0.3:  # a long, slender magnetometer or antenna boom
+        d = random_direction()
+        p = _surface_point(bus, d, rng, spread=0.3)
+        m, T = parts.rod_between(p, p + d * rng.uniform(3.0, 11.0), rng.uniform(0.015, 0.05))
         sc.add(m, rng.choice([Material.METAL, Material.DARK, Material.WHITE_PAINT]), T)
     n_truss = int(rng.integers(1, 3)) if archetype == "probe" else int(rng.random() < 0.25)
     for _ in range(n_truss):  # magnetometer or instrument booms

@@ -1,0 +1,76 @@
+"""Lighter variants of an exported model for weak onboard processors: FP16 and INT8.
+
+- FP16: weights and activations in half precision, inputs and outputs kept float32.
+- INT8: static quantisation (QDQ, per-channel weights) of the convolutions, calibrated on
+  spacecraft regions of training frames. Layers that carry metres or decide the mask at full
+  resolution stay in float: the depth head (its output is scaled by 10 m) and the mask refiner.
+Each variant is only worth keeping if its accuracy (``sdc-train evaluate --onnx``) and speed
+(``benchmarks/model_latency.py``) beat FP32 for the user's processor.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import onnx
+from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+from onnxruntime.quantization.shape_inference import quant_pre_process
+from onnxruntime.transformers.float16 import convert_float_to_float16
+
+from sdcnet.pipeline import normalise_gray, region_of_interest
+
+#: Nodes left in float by INT8 (ONNX node names of the TorchScript exporter).
+FLOAT_NODES_PREFIXES = ("/fdcnet/head/", "/refiner/")
+
+
+def to_fp16(source: str | Path, target: str | Path) -> Path:
+    model = convert_float_to_float16(onnx.load(str(source)), keep_io_types=True)
+    onnx.save(model, str(target))
+    return Path(target)
+
+
+class RegionReader(CalibrationDataReader):
+    """Feeds the spacecraft regions of (gray uint8, sparse) frames, one per call."""
+
+    def __init__(self, frames: list[tuple[np.ndarray, np.ndarray]], stride: int):
+        self._frames = iter(frames)
+        self.stride = stride
+
+    def get_next(self) -> dict[str, np.ndarray] | None:
+        frame = next(self._frames, None)
+        if frame is None:
+            return None
+        gray, sparse = frame
+        rows, cols = region_of_interest(sparse, self.stride).slices
+        return {
+            "gray": normalise_gray(gray[rows, cols])[None, None],
+            "sparse": np.ascontiguousarray(sparse[rows, cols], np.float32)[None, None],
+        }
+
+
+def _float_nodes(model: onnx.ModelProto) -> list[str]:
+    return [n.name for n in model.graph.node if n.name.startswith(FLOAT_NODES_PREFIXES)]
+
+
+def to_int8(source: str | Path, target: str | Path, frames: Iterator | list, stride: int) -> Path:
+    """Static INT8 quantisation of the convolutions, calibrated on ``frames``."""
+    target = Path(target)
+    prepared = target.with_suffix(".prep.onnx")
+    quant_pre_process(str(source), str(prepared), skip_symbolic_shape=True)
+    try:
+        quantize_static(
+            str(prepared),
+            str(target),
+            RegionReader(list(frames), stride),
+            quant_format=QuantFormat.QDQ,
+            op_types_to_quantize=["Conv"],
+            per_channel=True,
+            activation_type=QuantType.QUInt8,
+            weight_type=QuantType.QInt8,
+            nodes_to_exclude=_float_nodes(onnx.load(str(prepared))),
+        )
+    finally:
+        prepared.unlink(missing_ok=True)
+    return target
