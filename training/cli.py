@@ -9,6 +9,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from sdcnet.metrics import markdown_table
+from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint
 from sdcnet.training.data.format import SampleStore
 from sdcnet.training.evaluate import ClassicalFill, evaluate_records, torch_model_fn
@@ -61,6 +62,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         Path(args.out).write_text(
             json.dumps(
                 {
+                    "title": args.title or f"{args.split} split of {args.data}",
                     "split": args.split,
                     "images": len(records),
                     "results": results,
@@ -111,8 +113,32 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("--floor", action="store_true", help="also the classical morphological fill")
     e.add_argument("--limit", type=int, help="evaluate on this many images (evenly spread)")
     e.add_argument("--out", help="write the results as JSON")
+    e.add_argument("--title", help="heading of these results in the model card")
     e.set_defaults(func=cmd_evaluate)
+
+    c = sub.add_parser("card", help="write the model card from a checkpoint and evaluation reports")
+    c.add_argument("--checkpoint", required=True)
+    c.add_argument("--report", nargs="*", default=[], help="JSON files of `evaluate --out`")
+    c.add_argument("--onnx", help="the exported model the card describes (names its version)")
+    c.add_argument("--notes", help="markdown appended as is (limitations, observations)")
+    c.add_argument("--out", required=True)
+    c.set_defaults(func=cmd_card)
     return p
+
+
+def cmd_card(args: argparse.Namespace) -> int:
+    model, state = load_checkpoint(args.checkpoint)
+    reports = [json.loads(Path(r).read_text()) for r in args.report]
+    version = Path(args.checkpoint).stem
+    if args.onnx:
+        import onnx
+
+        meta = {p.key: p.value for p in onnx.load(args.onnx).metadata_props}
+        version = meta.get("model_version", version)
+    notes = Path(args.notes).read_text() if args.notes else ""
+    Path(args.out).write_text(model_card(state, model, reports, version, notes))
+    print(f"wrote {args.out}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

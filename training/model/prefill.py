@@ -15,12 +15,17 @@ from torch.nn import functional as F
 INVERT_M = 1000.0  # depths are inverted as INVERT_M - d: valid depths stay positive
 
 
-def _dilate(x: torch.Tensor, k: int) -> torch.Tensor:
-    return F.max_pool2d(x, k, stride=1, padding=k // 2)
+def _dilate(x: torch.Tensor, k: tuple[int, int]) -> torch.Tensor:
+    return F.max_pool2d(x, k, stride=1, padding=(k[0] // 2, k[1] // 2))
 
 
-def _erode(x: torch.Tensor, k: int) -> torch.Tensor:
-    return -F.max_pool2d(-x, k, stride=1, padding=k // 2)
+def _erode(x: torch.Tensor, k: tuple[int, int]) -> torch.Tensor:
+    return -_dilate(-x, k)
+
+
+def _close(x: torch.Tensor, k: tuple[int, int]) -> torch.Tensor:
+    """Morphological closing: bridges gaps narrower than ``k`` without growing the outline."""
+    return _erode(_dilate(x, k), k)
 
 
 def near_wins_downsample(depth: torch.Tensor, factor: int) -> torch.Tensor:
@@ -32,17 +37,26 @@ def near_wins_downsample(depth: torch.Tensor, factor: int) -> torch.Tensor:
 
 
 class MorphologicalPrefill(nn.Module):
-    """Sparse depth (B, 1, h, w) metres -> coarse dense depth (B, 1, h, w) metres, 0 = unfilled."""
+    """Sparse depth (B, 1, h, w) metres -> coarse dense depth (B, 1, h, w) metres, 0 = unfilled.
 
-    def __init__(self, dilate: int = 5, close: int = 5, fill: int = 9, blur: int = 3):
+    Kernels are (rows, columns) at the working resolution: the first dilation matches the beam
+    grid (returns ~4.5 rows and ~3 columns apart), closings then bridge what dropouts and
+    grazing surfaces left open, and a blur over valid pixels smooths the steps.
+    """
+
+    def __init__(self, dilate=(5, 3), close=(5, 5), holes=(9, 9), blur: int = 3):
         super().__init__()
-        self.dilate, self.close, self.fill, self.blur = dilate, close, fill, blur
+        self.dilate, self.close, self.holes, self.blur = (
+            tuple(dilate),
+            tuple(close),
+            tuple(holes),
+            blur,
+        )
 
     def forward(self, sparse: torch.Tensor) -> torch.Tensor:
         x = torch.where(sparse > 0, INVERT_M - sparse, torch.zeros_like(sparse))
         x = _dilate(x, self.dilate)
-        x = _erode(_dilate(x, self.close), self.close)
-        x = torch.where(x > 0, x, _dilate(x, self.fill))
+        x = _close(_close(x, self.close), self.holes)
         valid = (x > 0).to(x.dtype)
         total = F.avg_pool2d(
             x, self.blur, stride=1, padding=self.blur // 2, count_include_pad=False
