@@ -79,3 +79,32 @@ def object_crop(mask: np.ndarray, margin: float = 0.15, min_size: int = 96) -> t
     y0 = int(np.clip(cy - half, 0, max(h - 2 * half, 0)))
     x0 = int(np.clip(cx - half, 0, max(w - 2 * half, 0)))
     return slice(y0, int(y0 + 2 * half)), slice(x0, int(x0 + 2 * half))
+
+
+def side_view(
+    points: np.ndarray, size: int = 320, azimuth_deg: float = 90.0, elevation_deg: float = 20.0
+) -> np.ndarray:
+    """BGR picture of a camera-frame point cloud (N, 3) metres seen from the side.
+
+    The cloud is turned about its centroid (``azimuth_deg`` about the camera's y axis, then
+    ``elevation_deg`` about x), orthographically projected and drawn far-to-near as dots
+    coloured by distance from the original camera, so the 3-D shape reads at a glance.
+    """
+    canvas = np.zeros((size, size, 3), np.uint8)
+    if len(points) == 0:
+        return labelled(canvas, "no points")
+    p = points.astype(np.float64) - points.mean(axis=0)
+    a, e = np.radians(azimuth_deg), np.radians(elevation_deg)
+    turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    tilt = np.array([[1, 0, 0], [0, np.cos(e), -np.sin(e)], [0, np.sin(e), np.cos(e)]])
+    q = p @ (tilt @ turn).T
+    extent = max(np.ptp(q[:, 0]), np.ptp(q[:, 1]), 1e-6)
+    scale = 0.9 * size / extent
+    u = np.round(q[:, 0] * scale + size / 2).astype(int)
+    v = np.round(q[:, 1] * scale + size / 2).astype(int)
+    colours = colorize_depth(points[:, 2:3].T.astype(np.float32))[0]
+    order = np.argsort(-q[:, 2])  # far first, near drawn over
+    inside = (u >= 0) & (u < size) & (v >= 0) & (v < size)
+    order = order[inside[order]]
+    canvas[v[order], u[order]] = colours[order]
+    return cv2.dilate(canvas, np.ones((2, 2), np.uint8))
