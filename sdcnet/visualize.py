@@ -92,7 +92,7 @@ def side_view(
     """
     canvas = np.zeros((size, size, 3), np.uint8)
     if len(points) == 0:
-        return labelled(canvas, "no points")
+        return canvas
     p = points.astype(np.float64) - points.mean(axis=0)
     a, e = np.radians(azimuth_deg), np.radians(elevation_deg)
     turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])

@@ -12,8 +12,11 @@ from sdcnet.metrics import markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint
 from sdcnet.training.data.format import SampleStore
+from sdcnet.training.data.generate import GenerateConfig, generate
+from sdcnet.training.data.meshes import read_mesh_folder
 from sdcnet.training.evaluate import ClassicalFill, evaluate_records, torch_model_fn
 from sdcnet.training.model.sdcnet import VARIANTS
+from sdcnet.training.real import evaluate_per_model, gallery
 from sdcnet.training.train import PRESETS, TrainConfig, Trainer, config_from_preset
 
 
@@ -29,13 +32,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_evaluate(args: argparse.Namespace) -> int:
-    store = SampleStore(args.data)
-    records = store.split(args.split)
-    if not records:
-        raise ValueError(f"split {args.split!r} is empty in {args.data}")
-    if args.limit:
-        records = records[:: max(1, len(records) // args.limit)][: args.limit]
+def _methods(args: argparse.Namespace) -> dict[str, tuple]:
+    """Name -> (model callable, stride) for --checkpoint, --onnx and --floor."""
     methods = {}
     for path in args.checkpoint:
         model, state = load_checkpoint(path)
@@ -48,6 +46,74 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         methods[f"onnx:{Path(args.onnx).name}"] = (onnx_model.run, onnx_model.stride)
     if args.floor:
         methods["classical fill"] = (torch_model_fn(ClassicalFill()), 64)
+    if not methods:
+        raise ValueError("nothing to evaluate: give --checkpoint, --onnx or --floor")
+    return methods
+
+
+def cmd_real(args: argparse.Namespace) -> int:
+    """Render the real meshes (once), evaluate every method per spacecraft, draw the gallery."""
+    data = Path(args.data)
+    if not (data / "manifest.jsonl").exists():
+        config = GenerateConfig(
+            models=0,
+            views=args.views,
+            seed=args.seed,
+            meshes=read_mesh_folder(args.meshes),
+            split=(0, 0, 0),
+        )
+        generate(config, data, workers=args.workers)
+    store = SampleStore(data)
+    records = store.split("real")
+    methods = _methods(args)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    per_method = {
+        name: evaluate_per_model(fn, store, records, stride)
+        for name, (fn, stride) in methods.items()
+    }
+    overall = {name: tables["all"].mean() for name, tables in per_method.items()}
+    lines = [
+        f"Real spacecraft (never trained on): {len(records)} frames of "
+        f"{len({r['model_name'] for r in records})} NASA models, rendered by `sdc-data` "
+        f"({store.info['command']} --meshes ...), mean over images.",
+        "",
+        "### All spacecraft",
+        "",
+        markdown_table(overall),
+        "",
+    ]
+    first = next(iter(per_method))
+    for name in sorted(k for k in per_method[first] if k != "all"):
+        rows = {method: tables[name].mean() for method, tables in per_method.items()}
+        lines += [f"### {name}", "", markdown_table(rows), ""]
+    (out / "real_spacecraft.md").write_text("\n".join(lines))
+    (out / "real_spacecraft.json").write_text(
+        json.dumps(
+            {
+                "title": "Real spacecraft (never trained on)",
+                "split": "real",
+                "images": len(records),
+                "results": overall,
+                "undefined": {n: t["all"].undefined() for n, t in per_method.items()},
+            },
+            indent=1,
+        )
+    )
+    fn, stride = methods[first]
+    print(gallery(fn, store, records, stride, out / "gallery.png"))
+    print("\n".join(lines))
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    store = SampleStore(args.data)
+    records = store.split(args.split)
+    if not records:
+        raise ValueError(f"split {args.split!r} is empty in {args.data}")
+    if args.limit:
+        records = records[:: max(1, len(records) // args.limit)][: args.limit]
+    methods = _methods(args)
     results, counts, undefined = {}, {}, {}
     for name, (fn, stride) in methods.items():
         table = evaluate_records(fn, store, records, stride=stride, desc=name)
@@ -115,6 +181,20 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("--out", help="write the results as JSON")
     e.add_argument("--title", help="heading of these results in the model card")
     e.set_defaults(func=cmd_evaluate)
+
+    r = sub.add_parser("real", help="real spacecraft meshes: per-spacecraft table and gallery")
+    r.add_argument("--checkpoint", nargs="*", default=[], help="first one draws the gallery")
+    r.add_argument("--onnx", help="also the exported ONNX model")
+    r.add_argument("--floor", action="store_true", help="also the classical morphological fill")
+    r.add_argument(
+        "--meshes", default="../shared/real-meshes", help="mesh folder with manifest.json"
+    )
+    r.add_argument("--data", default="data/real", help="where the rendered frames go (made once)")
+    r.add_argument("--views", type=int, default=8)
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--workers", type=int, default=2)
+    r.add_argument("--out", default="docs/real", help="markdown table, JSON and gallery.png")
+    r.set_defaults(func=cmd_real)
 
     c = sub.add_parser("card", help="write the model card from a checkpoint and evaluation reports")
     c.add_argument("--checkpoint", required=True)
