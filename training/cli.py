@@ -10,7 +10,7 @@ from pathlib import Path
 
 from sdcnet.metrics import markdown_table
 from sdcnet.training.card import model_card
-from sdcnet.training.checkpoint import load_checkpoint
+from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.data.format import SampleStore
 from sdcnet.training.data.generate import GenerateConfig, generate
 from sdcnet.training.data.meshes import read_mesh_folder
@@ -196,6 +196,11 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--out", default="docs/real", help="markdown table, JSON and gallery.png")
     r.set_defaults(func=cmd_real)
 
+    s = sub.add_parser("ship", help="copy a checkpoint without the optimiser state (to commit)")
+    s.add_argument("--checkpoint", required=True)
+    s.add_argument("--out", required=True)
+    s.set_defaults(func=cmd_ship)
+
     c = sub.add_parser("card", help="write the model card from a checkpoint and evaluation reports")
     c.add_argument("--checkpoint", required=True)
     c.add_argument("--report", nargs="*", default=[], help="JSON files of `evaluate --out`")
@@ -204,6 +209,18 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("--out", required=True)
     c.set_defaults(func=cmd_card)
     return p
+
+
+def cmd_ship(args: argparse.Namespace) -> int:
+    model, state = load_checkpoint(args.checkpoint)
+    keep = {
+        k: v
+        for k, v in state.items()
+        if k not in ("model", "model_config", "optimizer", "scheduler")
+    }
+    save_checkpoint(Path(args.out), model, **keep)
+    print(f"wrote {args.out} ({Path(args.out).stat().st_size / 1e6:.2f} MB)")
+    return 0
 
 
 def cmd_card(args: argparse.Namespace) -> int:
