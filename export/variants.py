@@ -3,7 +3,8 @@
 - FP16: weights and activations in half precision, inputs and outputs kept float32.
 - INT8: static quantisation (QDQ, per-channel weights) of the convolutions, calibrated on
   spacecraft regions of training frames. Layers that carry metres or decide the mask at full
-  resolution stay in float: the depth head (its output is scaled by 10 m) and the mask refiner.
+  resolution stay in float: the depth head (its output is scaled by 10 m) and FSNet's head
+  (its outputs are the full-resolution mask logits).
 Each variant is only worth keeping if its accuracy (``sdc-train evaluate --onnx``) and speed
 (``benchmarks/model_latency.py``) beat FP32 for the user's processor.
 """
@@ -22,7 +23,7 @@ from onnxruntime.transformers.float16 import convert_float_to_float16
 from sdcnet.pipeline import normalise_gray, region_of_interest
 
 #: Nodes left in float by INT8 (ONNX node names of the TorchScript exporter).
-FLOAT_NODES_PREFIXES = ("/fdcnet/head/", "/refiner/")
+FLOAT_NODES_PREFIXES = ("/fdcnet/head/", "/fsnet/head/")
 
 
 def to_fp16(source: str | Path, target: str | Path) -> Path:

@@ -55,7 +55,7 @@ def test_parity_rejects_a_perturbed_model(exported, frames):
     perturbed.load_state_dict(model.state_dict())
     with torch.no_grad():
         perturbed.fdcnet.head.bias += 0.01  # 10 cm in depth: the graph no longer matches
-        perturbed.refiner.conv2.bias += 3.0  # and the mask flips
+        perturbed.fsnet.head.bias += 3.0  # and the mask flips
     cases = parity_check(perturbed, path, frames, sizes=(256,), batches=(1,))
     assert not cases[0].passed
     assert cases[0].max_depth_error_m == pytest.approx(0.1, rel=1e-3)

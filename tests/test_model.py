@@ -35,6 +35,9 @@ def test_every_variant_accepts_odd_sizes_and_batches(variant):
         depth, prob = model(gray, sparse)
     assert depth.shape == prob.shape == (2, 1, 77, 131)
     assert torch.isfinite(depth).all() and ((prob >= 0) & (prob <= 1)).all()
+    if model.fsnet is not None:  # stage 1 trains exactly the mask the full model outputs
+        with torch.no_grad():
+            torch.testing.assert_close(model.segment(gray, sparse), prob)
 
 
 @pytest.mark.parametrize("inputs", ["gray", "sparse", "both"])
@@ -113,19 +116,18 @@ def test_a_few_optimisation_steps_reduce_both_losses(tiny_dataset):
     model = SDCNet()
     seg = torch.optim.Adam(model.segmentation_parameters(), lr=1e-2)
     losses = []
-    for _ in range(12):
-        _, prob = model(batch["gray"], batch["sparse"])
+    for _ in range(20):
+        prob = model.segment(batch["gray"], batch["sparse"])
         loss = segmentation_loss(prob, batch["depth"])
         seg.zero_grad()
         loss.backward()
         seg.step()
         losses.append(loss.item())
-    assert losses[-1] < 0.7 * losses[0]
+    assert losses[-1] < 0.75 * losses[0]
     seg_ids = set(map(id, model.segmentation_parameters()))
     rest = [p for p in model.parameters() if id(p) not in seg_ids]
     opt = torch.optim.Adam(rest, lr=3e-3)
     model.fsnet.eval()
-    model.refiner.eval()
     depth_losses = []
     for _ in range(12):
         depth, prob = model(batch["gray"], batch["sparse"])

@@ -1,6 +1,6 @@
 """Two-stage training of SDCNet (paper sec. V-A), on one CPU, one GPU or many (torchrun).
 
-Stage 1 trains FSNet (and the mask refiner) with BCE; stage 2 freezes them and trains the
+Stage 1 trains FSNet with BCE; stage 2 freezes it and trains the
 rest with L1 on the predicted foreground. Adam, lr 1e-3, weight decay 1e-3, cosine decay per
 stage. Every epoch: validation on the val split with all six metrics, a CSV log line, a
 learning-curve plot, ``last.pt`` (to resume) and ``best.pt`` (best val MATE; stage 1: IOU).
@@ -259,7 +259,6 @@ class Trainer:
         self.model.train()
         if stage == 2 and self.model.fsnet is not None:  # frozen: keep its batch-norm statistics
             self.model.fsnet.eval()
-            self.model.refiner.eval()
         losses = []
         bar = tqdm(
             self._loader(epoch),
@@ -303,11 +302,7 @@ class Trainer:
             self.config.init_segmentation, map_location=self.device, weights_only=True
         )
         own = self.model.state_dict()
-        seg = {
-            k: v
-            for k, v in state["model"].items()
-            if k.startswith(("fsnet.", "refiner.")) and k in own
-        }
+        seg = {k: v for k, v in state["model"].items() if k.startswith("fsnet.") and k in own}
         self.model.load_state_dict({**own, **seg})
         self.state["stage"] = 2
 

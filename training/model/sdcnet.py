@@ -3,11 +3,15 @@
 Input: gray (B, 1, H, W) in [0, 1] and sparse LIDAR depth (B, 1, H, W) in metres (0 = none),
 any H x W. Output: dense depth (B, 1, H, W) in metres and foreground probability (B, 1, H, W).
 
-To fit ~100 ms per 1024 x 1024 frame on two cores, the networks run at a working resolution
-``factor`` times below the input (the sparse map is downsampled keeping the nearest return),
-depth is upsampled bilinearly and the foreground logit is upsampled and refined against the
-full-resolution gray image. Depth is regressed relative to the mean LIDAR return of the image
-(d_ref) in units of ``depth_scale_m``, so the same weights serve 50 m and 250 m.
+To fit ~100 ms per 1024 x 1024 frame on two cores, the depth networks run at a working
+resolution ``factor`` (4) times below the input and FSNet at ``seg_factor`` (2) times below
+(the sparse map is downsampled keeping the nearest return); depth is upsampled bilinearly,
+FSNet sees the full-resolution gray image as space-to-depth blocks and predicts the mask at
+full resolution by depth-to-space. The mask gets the finer grid because it decides most of
+the score: an ideal mask pooled to 1/4 and
+upsampled keeps IOU 92.5 % on our data, pooled to 1/2 it keeps 96.4 %. Depth is regressed
+relative to the mean LIDAR return of the image (d_ref) in units of ``depth_scale_m``, so the
+same weights serve 50 m and 250 m.
 Inputs are padded internally to the network's stride and the padding is cut off again.
 """
 
@@ -20,7 +24,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from sdcnet.training.model.fdcnet import FDCNet
-from sdcnet.training.model.fsnet import FSNet, MaskRefiner
+from sdcnet.training.model.fsnet import FSNet
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
 
 FSNET_INPUTS = ("both", "gray", "sparse")
@@ -30,7 +34,8 @@ FSNET_INPUTS = ("both", "gray", "sparse")
 class ModelConfig:
     """Architecture of one variant. Defaults: SDCNet as shipped."""
 
-    factor: int = 4  # working resolution = input / factor
+    factor: int = 4  # depth networks' working resolution = input / factor
+    seg_factor: int = 2  # FSNet's resolution = input / seg_factor: the mask decides the score
     widths: tuple[int, ...] = (8, 16, 32, 48)
     fusion: str = "cca+sa"  # "cca+sa" (SDCNet), "cca", "sa", "guided" (GuideNet baseline)
     use_fsnet: bool = True  # False: the baseline regresses depth everywhere, no segmentation
@@ -43,7 +48,7 @@ class ModelConfig:
     def stride(self) -> int:
         """Input sizes are padded to multiples of this."""
         coarsest = 2 ** (len(self.widths) - 1)
-        return self.factor * max(coarsest, 4 * self.grid)
+        return max(self.factor * max(coarsest, 4 * self.grid), 4 * self.seg_factor)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -51,6 +56,12 @@ class ModelConfig:
     @classmethod
     def from_dict(cls, d: dict) -> ModelConfig:
         return cls(**{**d, "widths": tuple(d["widths"])})
+
+    def __post_init__(self):
+        if self.factor % self.seg_factor:
+            raise ValueError(
+                f"factor {self.factor} must be a multiple of seg_factor {self.seg_factor}"
+            )
 
 
 VARIANTS: dict[str, ModelConfig] = {
@@ -69,16 +80,14 @@ class SDCNet(nn.Module):
             raise ValueError(f"fsnet_inputs must be one of {FSNET_INPUTS}")
         self.config = config
         self.prefill = MorphologicalPrefill()
-        fs_channels = {"both": 3, "gray": 1, "sparse": 2}[config.fsnet_inputs]
-        self.fsnet = FSNet(fs_channels) if config.use_fsnet else None
-        self.refiner = MaskRefiner() if config.use_fsnet else None
+        blocks = config.seg_factor**2  # full-resolution pixels per FSNet pixel
+        fs_channels = {"both": blocks + 2, "gray": blocks, "sparse": 2}[config.fsnet_inputs]
+        self.fsnet = FSNet(fs_channels, blocks) if config.use_fsnet else None
         self.fdcnet = FDCNet(2, config.widths, config.fusion, config.grid, config.heads)
 
     def segmentation_parameters(self) -> list[nn.Parameter]:
         """Stage 1 trains these; stage 2 freezes them."""
-        if self.fsnet is None:
-            return []
-        return [*self.fsnet.parameters(), *self.refiner.parameters()]
+        return [] if self.fsnet is None else list(self.fsnet.parameters())
 
     def reference_depth(self, sparse_lr: torch.Tensor) -> torch.Tensor:
         """Mean LIDAR return per image (B, 1, 1, 1) metres; 0 when there is none."""
@@ -87,33 +96,34 @@ class SDCNet(nn.Module):
         return total / count.clamp_min(1.0)
 
     def _prepare(self, gray: torch.Tensor, sparse: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Padded full-resolution gray, working-resolution inputs and the reference depth."""
+        """Padded full-resolution gray, the sparse map at FSNet's and at the depth networks'
+        resolutions, the gray image at the latter, and the reference depth."""
         H, W = gray.shape[-2:]
-        s, f = self.config.stride, self.config.factor
+        s = self.config.stride
         pad = (0, (s - W % s) % s, 0, (s - H % s) % s)
         gray_p, sparse_p = F.pad(gray, pad), F.pad(sparse, pad)
-        sparse_lr = near_wins_downsample(sparse_p, f)
+        sparse_seg = near_wins_downsample(sparse_p, self.config.seg_factor)
+        sparse_lr = near_wins_downsample(sparse_seg, self.config.factor // self.config.seg_factor)
         return {
             "gray": gray_p,
-            "gray_lr": F.avg_pool2d(gray_p, f),
+            "gray_lr": F.avg_pool2d(gray_p, self.config.factor),
+            "sparse_seg": sparse_seg,
             "sparse_lr": sparse_lr,
             "d_ref": self.reference_depth(sparse_lr),
         }
 
     def _segment(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
         """Foreground probability at full (padded) resolution."""
-        returns = (x["sparse_lr"] > 0).to(x["gray"].dtype)
-        relative = returns * (x["sparse_lr"] - x["d_ref"]) / self.config.depth_scale_m
+        seg = self.config.seg_factor
+        returns = (x["sparse_seg"] > 0).to(x["gray"].dtype)
+        relative = returns * (x["sparse_seg"] - x["d_ref"]) / self.config.depth_scale_m
+        blocks = F.pixel_unshuffle(x["gray"], seg)  # space-to-depth: full-resolution detail
         fs_in = {
-            "both": [x["gray_lr"], returns, relative],
-            "gray": [x["gray_lr"]],
+            "both": [blocks, returns, relative],
+            "gray": [blocks],
             "sparse": [returns, relative],
         }[self.config.fsnet_inputs]
-        logit_lr = self.fsnet(torch.cat(fs_in, 1))
-        logit = F.interpolate(
-            logit_lr, scale_factor=self.config.factor, mode="bilinear", align_corners=False
-        )
-        return torch.sigmoid(self.refiner(x["gray"], logit))
+        return torch.sigmoid(F.pixel_shuffle(self.fsnet(torch.cat(fs_in, 1)), seg))
 
     def _regress(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
         """Dense depth in metres at full (padded) resolution."""
