@@ -2,6 +2,10 @@
 
 import csv
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -114,3 +118,32 @@ def test_evaluate_prints_the_table_with_the_floor_and_writes_the_card(
 def test_bad_arguments_give_clear_errors(tmp_path, capsys):
     assert train_main(["fit", "--data", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
     assert "not an sdcnet dataset" in capsys.readouterr().err
+
+
+def test_fit_runs_unchanged_under_torchrun(tiny_dataset, tmp_path):
+    """Two processes, gloo on the CPU: DistributedDataParallel through both stages."""
+    torchrun = Path(sys.executable).with_name("torchrun")
+    out = tmp_path / "ddp"
+    cmd = [
+        str(torchrun),
+        "--nproc-per-node",
+        "2",
+        "-m",
+        "sdcnet.training.cli",
+        "fit",
+        "--data",
+        str(tiny_dataset),
+        "--out",
+        str(out),
+        "--preset",
+        "smoke",
+        "--samples-per-epoch",
+        "4",
+    ]
+    done = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"}
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = list(csv.DictReader((out / "log.csv").open()))
+    assert [r["stage"] for r in rows] == ["1", "2"], "one log, written by rank 0 only"
+    assert (out / "best.pt").exists()
