@@ -73,8 +73,8 @@ PRESETS: dict[str, dict] = {
     "paper": {"fsnet_epochs": 30, "epochs": 50, "batch_size": 8, "tile": 512},
     # About an hour on two CPU cores: fewer, smaller tiles centred on the spacecraft.
     "cpu": {
-        "fsnet_epochs": 6,
-        "epochs": 14,
+        "fsnet_epochs": 8,
+        "epochs": 16,
         "batch_size": 8,
         "tile": 320,
         "samples_per_epoch": 1600,

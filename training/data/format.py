@@ -76,6 +76,12 @@ def read_sample(path: Path) -> Sample:
     return Sample(arrays["gray"], arrays["sparse"], arrays["depth"], meta)
 
 
+def read_meta(path: Path) -> dict:
+    """A sample's metadata alone, without decompressing its arrays."""
+    with zipfile.ZipFile(path) as zf:
+        return json.loads(zf.read("meta.json"))
+
+
 def is_complete(path: Path) -> bool:
     """Whether a sample file exists and its zip directory is readable (for resuming)."""
     try:

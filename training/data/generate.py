@@ -17,7 +17,7 @@ from sdcnet.training.data.format import (
     Sample,
     SampleStore,
     is_complete,
-    read_sample,
+    read_meta,
     sample_id,
     write_sample,
 )
@@ -196,6 +196,6 @@ def generate(
     files = [out / "samples" / f"{sample_id(t[2], t[3])}.npz" for t in tasks]
     if not all(is_complete(f) for f in files):
         return None
-    lines = [json.dumps(read_sample(f).meta, sort_keys=True) for f in files]
+    lines = [json.dumps(read_meta(f), sort_keys=True) for f in files]
     (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
     return SampleStore(out)
