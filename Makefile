@@ -35,3 +35,10 @@ demo: $(STAMP)
 
 clean-venv:
 	rm -rf $(VENV)
+
+## serve: start the inference service on the shipped model (http://127.0.0.1:8000/docs);
+## flags through SERVE_ARGS, e.g. make serve SERVE_ARGS="--port 9000 --threads 2"
+.PHONY: serve
+SERVE_ARGS ?=
+serve: $(STAMP)
+	$(VENV)/bin/sdc-serve $(SERVE_ARGS)

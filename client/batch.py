@@ -1,0 +1,163 @@
+"""Many frames through the service: finding the pairs, and running them concurrently.
+
+A batch input is one of:
+
+- a folder of pairs: each gray image ``NAME.png`` (or .tif, .tiff, .jpg, .jpeg, .bmp) with
+  its sparse map ``NAME.npy`` (metres) or ``NAME.sparse.png`` (16-bit, needs a depth scale);
+- a JSON-lines manifest, one pair per line: ``{"gray": PATH, "sparse": PATH}`` with optional
+  ``"id"``, ``"depth_scale"``, ``"fx"``, ``"fy"``, ``"cx"``, ``"cy"``; paths are relative to
+  the manifest's folder;
+- an sdcnet dataset (``sdc-data generate``): its folder or its ``manifest.jsonl``, whose lines
+  name ``samples/<id>.npz`` files holding both arrays; ``split`` selects train / val / test.
+
+Every pair gets its own output folder ``OUT/<id>/`` with the files of ``sdc-client infer``. A
+pair that fails is reported and the others go on.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from sdcnet.client.api import Client, ClientError, Completion, InputError, Source, read_file
+from sdcnet.client.outputs import local_image, write_outputs
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
+SPARSE_PNG_SUFFIX = ".sparse.png"
+_OPTIONS = ("depth_scale", "fx", "fy", "cx", "cy")
+
+
+@dataclass(frozen=True)
+class Pair:
+    """One frame to complete. A dataset sample has ``gray == sparse ==`` its ``.npz``."""
+
+    name: str
+    gray: Path
+    sparse: Path
+    options: dict[str, float] = field(default_factory=dict)  # depth_scale, fx, fy, cx, cy
+
+    def sources(self) -> tuple[Source, Source]:
+        """What ``Client.complete`` takes: file bytes, or the arrays of a dataset sample."""
+        if self.gray == self.sparse and self.gray.suffix == ".npz":
+            try:
+                with np.load(self.gray, allow_pickle=False) as npz:
+                    return npz["gray.npy"], npz["sparse.npy"]
+            except (OSError, ValueError, KeyError) as exc:
+                raise InputError(f"cannot read dataset sample {self.gray}: {exc}") from exc
+        return read_file(self.gray, "gray image"), read_file(self.sparse, "sparse depth")
+
+
+def _folder_pairs(folder: Path) -> list[Pair]:
+    pairs = []
+    for path in sorted(folder.iterdir()):
+        name = path.name
+        if path.suffix.lower() not in IMAGE_SUFFIXES or name.endswith(SPARSE_PNG_SUFFIX):
+            continue
+        stem = path.with_suffix("")
+        npy, png = stem.with_suffix(".npy"), Path(f"{stem}{SPARSE_PNG_SUFFIX}")
+        pairs.append(Pair(stem.name, path, npy if npy.exists() or not png.exists() else png))
+    return pairs
+
+
+def _manifest_pairs(manifest: Path, split: str | None) -> list[Pair]:
+    root = manifest.parent
+    pairs = []
+    for number, line in enumerate(read_file(manifest, "manifest").decode().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            record: dict[str, Any] = json.loads(line)
+            if split is not None and record.get("split") != split:
+                continue
+            if "file" in record:  # an sdcnet dataset sample
+                sample = root / record["file"]
+                gray = sparse = sample
+            else:
+                gray, sparse = root / record["gray"], root / record["sparse"]
+            options = {k: float(record[k]) for k in _OPTIONS if record.get(k) is not None}
+        except (ValueError, KeyError, TypeError) as exc:
+            raise InputError(f"{manifest} line {number}: not a pair ({exc})") from exc
+        name = str(record.get("id") or Path(gray).stem).replace("/", "_")
+        pairs.append(Pair(name, gray, sparse, options))
+    return pairs
+
+
+def find_pairs(source: Path, split: str | None = None) -> list[Pair]:
+    """The pairs of a folder, a JSON-lines manifest or a dataset (see the module doc)."""
+    if source.is_dir():
+        manifest = source / "manifest.jsonl"
+        return _manifest_pairs(manifest, split) if manifest.is_file() else _folder_pairs(source)
+    if source.is_file():
+        return _manifest_pairs(source, split)
+    raise InputError(f"batch input not found: {source}")
+
+
+@dataclass
+class BatchReport:
+    done: list[tuple[Pair, Completion]] = field(default_factory=list)
+    failed: list[tuple[Pair, str]] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def summary(self) -> str:
+        total = len(self.done) + len(self.failed)
+        lines = [
+            f"{len(self.done)} of {total} pairs completed, {len(self.failed)} failed, "
+            f"in {self.seconds:.1f} s ({len(self.done) / max(self.seconds, 1e-9):.2f} frames/s)"
+        ]
+        if self.done:
+            latency = np.array([c.latency_s for _, c in self.done]) * 1e3
+            inference = [c.timings_ms.get("inference_ms", 0.0) for _, c in self.done]
+            lines.append(
+                f"latency median {np.median(latency):.1f} ms, max {latency.max():.1f} ms; "
+                f"server inference median {np.median(inference):.1f} ms"
+            )
+        lines += [f"FAILED {pair.name}: {message}" for pair, message in self.failed]
+        return "\n".join(lines)
+
+
+def run_batch(
+    client: Client,
+    pairs: list[Pair],
+    out: Path,
+    concurrency: int = 2,
+    outlier_removal: bool = False,
+    defaults: dict[str, float] | None = None,
+    progress: bool = True,
+) -> BatchReport:
+    """Complete every pair, at most ``concurrency`` requests at once, writing ``out/<name>/``.
+    ``defaults`` (depth_scale, intrinsics) apply where a pair does not set its own."""
+    report = BatchReport()
+
+    def one(pair: Pair) -> Completion:
+        gray, sparse = pair.sources()
+        options = dict(defaults or {})
+        if pair.sparse.suffix.lower() != ".png":
+            options.pop("depth_scale", None)  # a scale is for 16-bit PNG maps only
+        options.update(pair.options)
+        result = client.complete(gray, sparse, outlier_removal=outlier_removal, **options)
+        write_outputs(out / pair.name, local_image(gray), result)
+        return result
+
+    start = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=max(concurrency, 1)) as pool:
+        futures = {pool.submit(one, pair): pair for pair in pairs}
+        bar = tqdm(as_completed(futures), total=len(futures), unit="frame", disable=not progress)
+        for future in bar:
+            pair = futures[future]
+            try:
+                report.done.append((pair, future.result()))
+            except ClientError as exc:
+                report.failed.append((pair, str(exc)))
+            except Exception as exc:  # a bad pair must not stop the batch, whatever went wrong
+                report.failed.append((pair, f"{type(exc).__name__}: {exc}"))
+            if report.failed:
+                bar.set_postfix(failed=len(report.failed))
+    report.seconds = time.perf_counter() - start
+    return report

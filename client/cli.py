@@ -1,0 +1,163 @@
+"""``sdc-client``: talk to an sdcnet service from the command line.
+
+    sdc-client infer GRAY SPARSE [--out DIR] [--fx F --fy F --cx C --cy C] [--depth-scale S]
+    sdc-client batch DIR_OR_MANIFEST --out DIR [--concurrency N] [--split test]
+    sdc-client health
+    sdc-client model
+
+Exit status: 0 done; 1 a batch with failed pairs; 2 a local input is missing or unreadable
+(or the command line is wrong); 3 the service answered an error; 4 the service is unreachable
+(or not ready, for ``health``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from sdcnet.client.api import (
+    DEFAULT_URL,
+    Client,
+    ClientError,
+    InputError,
+    ServiceError,
+    ServiceUnreachableError,
+    read_file,
+)
+from sdcnet.client.batch import find_pairs, run_batch
+from sdcnet.client.outputs import local_image, summary, write_outputs
+
+EXIT_OK, EXIT_FAILED_PAIRS, EXIT_INPUT, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2, 3, 4
+
+
+def _connection_options() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument(
+        "--url", default=DEFAULT_URL, help=f"service URL (default: $SDCNET_URL or {DEFAULT_URL})"
+    )
+    common.add_argument("--timeout", type=float, default=60.0, help="seconds per attempt")
+    common.add_argument(
+        "--retries", type=int, default=3, help="retries on connection errors and 503"
+    )
+    return common
+
+
+def _frame_options() -> argparse.ArgumentParser:
+    frame = argparse.ArgumentParser(add_help=False)
+    for name in ("fx", "fy", "cx", "cy"):
+        frame.add_argument(
+            f"--{name}", type=float, help="intrinsics, pixels (default: the model's, scaled)"
+        )
+    frame.add_argument(
+        "--depth-scale", type=float, help="metres per unit of a 16-bit PNG sparse map"
+    )
+    frame.add_argument(
+        "--outlier-removal", action="store_true", help="statistical outlier removal on points"
+    )
+    return frame
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="sdc-client",
+        description="Dense spacecraft depth from a gray image and sparse LIDAR depth, through "
+        "an sdcnet service.",
+        epilog="exit status: 0 ok, 1 some batch pairs failed, 2 bad local input, "
+        "3 error answer from the service, 4 service unreachable or not ready",
+    )
+    sub = p.add_subparsers(dest="command", required=True)
+    common, frame = _connection_options(), _frame_options()
+    infer = sub.add_parser(
+        "infer", parents=[common, frame], help="complete one frame and write its files"
+    )
+    infer.add_argument("gray", type=Path, help="gray image: PNG, TIFF, JPEG or BMP")
+    infer.add_argument("sparse", type=Path, help=".npy (metres) or 16-bit PNG (--depth-scale)")
+    infer.add_argument("--out", type=Path, default=Path("sdcnet-out"), help="output folder")
+    batch = sub.add_parser(
+        "batch", parents=[common, frame], help="complete many frames, a folder per frame"
+    )
+    batch.add_argument("source", type=Path, help="folder of pairs, JSON-lines manifest or dataset")
+    batch.add_argument("--out", type=Path, required=True, help="output folder")
+    batch.add_argument("--concurrency", type=int, default=2, help="requests at once")
+    batch.add_argument("--split", help="dataset split to run (train, val, test...)")
+    batch.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sub.add_parser("health", parents=[common], help="is the service live and ready?")
+    sub.add_parser("model", parents=[common], help="the service's model metadata (JSON)")
+    return p
+
+
+def _frame_kwargs(args: argparse.Namespace) -> dict[str, float]:
+    names = ("fx", "fy", "cx", "cy", "depth_scale")
+    return {k: getattr(args, k) for k in names if getattr(args, k) is not None}
+
+
+def cmd_infer(client: Client, args: argparse.Namespace) -> int:
+    gray = read_file(args.gray, "gray image")
+    sparse = read_file(args.sparse, "sparse depth")
+    result = client.complete(
+        gray, sparse, outlier_removal=args.outlier_removal, **_frame_kwargs(args)
+    )
+    written = write_outputs(args.out, local_image(gray), result)
+    print(summary(result, client.url, written))
+    return EXIT_OK
+
+
+def cmd_batch(client: Client, args: argparse.Namespace) -> int:
+    pairs = find_pairs(args.source, args.split)
+    if not pairs:
+        raise InputError(f"no pairs found in {args.source}")
+    if not client.health()["ready"]:
+        raise ServiceUnreachableError(f"the service at {client.url} is not ready")
+    report = run_batch(
+        client,
+        pairs,
+        args.out,
+        concurrency=args.concurrency,
+        outlier_removal=args.outlier_removal,
+        defaults=_frame_kwargs(args),
+        progress=not args.no_progress,
+    )
+    print(report.summary())
+    return EXIT_FAILED_PAIRS if report.failed else EXIT_OK
+
+
+def cmd_health(client: Client, args: argparse.Namespace) -> int:
+    state = client.health()
+    print(
+        f"{client.url}: live {'yes' if state['live'] else 'no'}, "
+        f"ready {'yes' if state['ready'] else 'no'}"
+    )
+    return EXIT_OK if state["ready"] else EXIT_UNREACHABLE
+
+
+def cmd_model(client: Client, args: argparse.Namespace) -> int:
+    print(json.dumps(client.model(), indent=2))
+    return EXIT_OK
+
+
+COMMANDS = {"infer": cmd_infer, "batch": cmd_batch, "health": cmd_health, "model": cmd_model}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        with Client(args.url, timeout_s=args.timeout, retries=args.retries) as client:
+            return COMMANDS[args.command](client, args)
+    except InputError as exc:
+        print(f"sdc-client: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except ServiceError as exc:
+        print(f"sdc-client: {exc}", file=sys.stderr)
+        return EXIT_SERVICE
+    except ServiceUnreachableError as exc:
+        print(f"sdc-client: {exc}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+    except ClientError as exc:
+        print(f"sdc-client: {exc}", file=sys.stderr)
+        return EXIT_SERVICE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,181 @@
+"""Point clouds from dense depth: back-projection, statistical outlier removal, binary PLY.
+
+Shared by the service (which builds the cloud) and the client (which writes and reads it).
+Points are float32 (N, 3) in the camera frame of ``sdcnet.camera`` (x right, y down, z forward),
+metres, in row-major pixel order.
+
+Statistical outlier removal (SOR) is the filter the paper applies before showing its clouds
+(Fig. 7) and before pose estimation: for every point, the mean distance to its ``k`` nearest
+neighbours; points whose mean lies beyond ``mean + std_ratio * std`` of all points are dropped,
+and so are points with no neighbour at all. A k-d tree over a million points costs seconds, so
+the neighbours are searched on the organised pixel grid instead: the candidates of a pixel are
+the valid pixels in the (2r + 1) x (2r + 1) window around it, and the k nearest of those in 3-D
+are kept. On a depth image that is a sound stand-in for a true k-nearest search, because two
+points that are close in space project to nearby pixels (a pixel holds one visible surface), and
+at an occlusion boundary the window still holds enough of the point's own surface for its k
+nearest. Like any SOR it also drops points whose neighbours are sparse for the cloud: surfaces
+seen at grazing angles (on our renders of clean ground truth, 2-3 % of the foreground).
+It is vectorised over the grid: O(N (2r + 1)^2), ~0.3 s for a million points on two cores.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import BinaryIO
+
+import numpy as np
+
+from sdcnet.camera import Intrinsics
+
+#: Default grid half-window (pixels), neighbours per point and threshold of the outlier filter.
+SOR_RADIUS = 2
+SOR_NEIGHBOURS = 8
+SOR_STD_RATIO = 2.0
+
+_PLY_DTYPE = np.dtype("<f4")
+
+
+def back_project(depth: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """(N, 3) float32 camera-frame points (metres) of the ``mask`` pixels with depth > 0.
+
+    ``depth`` is camera-frame Z in metres (H, W); ``mask`` is a boolean (H, W) selection.
+    """
+    rows, cols = np.nonzero(mask & (depth > 0))
+    z = depth[rows, cols].astype(np.float64)
+    points = np.empty((len(z), 3), np.float32)
+    points[:, 0] = (cols - intrinsics.cx) * z / intrinsics.fx
+    points[:, 1] = (rows - intrinsics.cy) * z / intrinsics.fy
+    points[:, 2] = z
+    return points
+
+
+def statistical_outliers(
+    depth: np.ndarray,
+    mask: np.ndarray,
+    intrinsics: Intrinsics,
+    radius: int = SOR_RADIUS,
+    neighbours: int = SOR_NEIGHBOURS,
+    std_ratio: float = SOR_STD_RATIO,
+) -> np.ndarray:
+    """Boolean (H, W): the pixels of ``mask & (depth > 0)`` that the outlier filter keeps.
+
+    A point's score is the mean 3-D distance (metres) to its ``neighbours`` nearest valid pixels
+    within ``radius`` pixels on the grid (fewer where fewer exist); points
+    scoring above ``mean + std_ratio * std`` over all points, or with no neighbour, are outliers.
+    """
+    if radius < 1 or neighbours < 1:
+        raise ValueError("radius and neighbours must be at least 1")
+    valid = mask & (depth > 0)
+    keep = np.zeros_like(valid)
+    rows, cols = np.nonzero(valid)
+    if len(rows) == 0:
+        return keep
+    # The valid pixels' bounding box, padded by the window and flattened, so that a neighbour
+    # is an index offset: the one at +offset of pixel p is p + offset, the one at -offset is
+    # the pixel p - offset's neighbour at +offset, so half the offsets give all distances.
+    r = radius
+    y0, x0 = rows.min() - r, cols.min() - r
+    h, w = rows.max() + r + 1 - y0, cols.max() + r + 1 - x0
+    n = h * w
+    index = (rows - y0) * w + (cols - x0)
+    grid = np.zeros((4, n + r * w + r), np.float32)  # x, y, z (metres), valid; zero padding
+    z = depth[rows, cols].astype(np.float32)
+    grid[0, index] = (cols - intrinsics.cx) / intrinsics.fx * z
+    grid[1, index] = (rows - intrinsics.cy) / intrinsics.fy * z
+    grid[2, index] = z
+    grid[3, index] = 1
+    here = grid[:, :n]
+    half = [dy * w + dx for dy in range(r + 1) for dx in range(-r, r + 1) if dy or dx > 0]
+    distances = np.empty((len(index), 2 * len(half)), np.float32)
+    for i, offset in enumerate(half):
+        there = grid[:, offset : offset + n]
+        delta = there[:3] - here[:3]
+        dist = np.sqrt(np.einsum("ij,ij->j", delta, delta))
+        dist[(there[3] == 0) | (here[3] == 0)] = np.inf
+        distances[:, 2 * i] = dist[index]
+        distances[:, 2 * i + 1] = dist[index - offset]
+    nearest = np.sort(distances, axis=1)[:, :neighbours]
+    found = np.isfinite(nearest)
+    count = found.sum(axis=1)
+    score = np.where(found, nearest, 0).sum(axis=1) / np.maximum(count, 1)
+    scores = score[count > 0]
+    if len(scores) == 0:
+        return keep
+    limit = scores.mean() + std_ratio * scores.std()
+    kept = (count > 0) & (score <= limit)
+    keep[rows[kept], cols[kept]] = True
+    return keep
+
+
+def ply_bytes(points: np.ndarray, comments: tuple[str, ...] | list[str] = ()) -> bytes:
+    """Binary little-endian PLY of (N, 3) points (float32 x, y, z; metres)."""
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be (N, 3), got {points.shape}")
+    lines = ["ply", "format binary_little_endian 1.0"]
+    for comment in comments:
+        if "\n" in comment or "\r" in comment:
+            raise ValueError("a PLY comment must be one line")
+        lines.append(f"comment {comment}")
+    lines += [
+        f"element vertex {len(points)}",
+        "property float x",
+        "property float y",
+        "property float z",
+        "end_header",
+    ]
+    header = ("\n".join(lines) + "\n").encode("ascii")
+    return header + np.ascontiguousarray(points, dtype=_PLY_DTYPE).tobytes()
+
+
+def write_ply(path: str | Path, points: np.ndarray, comments: tuple[str, ...] = ()) -> Path:
+    """Write ``points`` as a binary PLY file; returns its path."""
+    path = Path(path)
+    path.write_bytes(ply_bytes(points, comments))
+    return path
+
+
+def read_ply(source: str | Path | bytes | BinaryIO) -> tuple[np.ndarray, list[str]]:
+    """(points (N, 3) float32, comments) of a binary little-endian PLY with one float x, y, z
+    vertex element: the layout ``ply_bytes`` writes. Raises ValueError for anything else."""
+    if isinstance(source, bytes):
+        stream: BinaryIO = io.BytesIO(source)
+    elif isinstance(source, str | Path):
+        stream = io.BytesIO(Path(source).read_bytes())
+    else:
+        stream = source
+    if stream.readline().rstrip(b"\r\n") != b"ply":
+        raise ValueError("not a PLY file: it does not start with 'ply'")
+    comments: list[str] = []
+    fields: list[str] = []
+    count = None
+    while True:
+        raw = stream.readline()
+        if not raw:
+            raise ValueError("PLY header has no end_header")
+        line = raw.decode("ascii", errors="replace").strip()
+        keyword, _, rest = line.partition(" ")
+        if keyword == "end_header":
+            break
+        if keyword == "comment":
+            comments.append(rest)
+        elif keyword == "format":
+            if rest.split()[:1] != ["binary_little_endian"]:
+                raise ValueError(f"unsupported PLY format {rest!r}: binary_little_endian only")
+        elif keyword == "element":
+            name, _, size = rest.partition(" ")
+            if name != "vertex" or count is not None:
+                raise ValueError(f"unsupported PLY element {rest!r}: one vertex element only")
+            count = int(size)
+        elif keyword == "property":
+            fields.append(rest)
+        elif keyword != "obj_info":
+            raise ValueError(f"unexpected PLY header line {line!r}")
+    if count is None or fields != ["float x", "float y", "float z"]:
+        raise ValueError(f"unsupported PLY layout: vertex {count} with properties {fields}")
+    data = stream.read(count * 3 * _PLY_DTYPE.itemsize)
+    if len(data) != count * 3 * _PLY_DTYPE.itemsize:
+        raise ValueError(f"PLY data is truncated: {count} vertices announced")
+    points = np.frombuffer(data, _PLY_DTYPE).reshape(count, 3).astype(np.float32)
+    return points, comments

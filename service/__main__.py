@@ -1,0 +1,7 @@
+"""``python -m sdcnet.service``: the same as ``sdc-serve``."""
+
+import sys
+
+from sdcnet.service.cli import main
+
+sys.exit(main())

@@ -1,0 +1,125 @@
+"""What happens to a request before the application sees it, and the count of how it ended.
+
+A pure ASGI middleware, so that it can answer before the body is read:
+
+- every request: a body larger than ``max_upload_bytes`` gets 413, from its Content-Length
+  when declared, else as soon as the streamed bytes pass the limit;
+- ``POST /complete``: at most ``max_in_flight`` at once, the next ones get 503 with
+  Retry-After at once (no unbounded queue; Triton and Ray Serve do the same); the pending gauge,
+  the success / failure counters and the request latency are kept here, where every outcome
+  passes, the early refusals included. Probes and metrics are never limited.
+"""
+
+from __future__ import annotations
+
+import time
+
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from sdcnet.service.errors import ApiError, error_response
+from sdcnet.service.metrics import ServiceMetrics
+
+INFERENCE_PATH = "/complete"
+
+
+class Admission:
+    """The middleware (see the module doc); ``app.add_middleware(Admission, ...)``."""
+
+    def __init__(
+        self,
+        app: ASGIApp,
+        metrics: ServiceMetrics,
+        max_in_flight: int,
+        max_upload_bytes: int,
+        retry_after_s: int,
+    ):
+        self.app = app
+        self.metrics = metrics
+        self.max_in_flight = max_in_flight
+        self.max_upload_bytes = max_upload_bytes
+        self.retry_after_s = retry_after_s
+        self.in_flight = 0  # only touched on the event loop: no lock needed
+
+    def _too_large(self) -> ApiError:
+        return ApiError(
+            413,
+            "too_large",
+            f"request body above this service's limit of {self.max_upload_bytes} bytes",
+        )
+
+    def _overloaded(self) -> ApiError:
+        return ApiError(
+            503,
+            "overloaded",
+            f"{self.max_in_flight} requests are in flight, the most this service takes; "
+            f"retry after {self.retry_after_s} s",
+            headers={"Retry-After": str(self.retry_after_s)},
+        )
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        path = scope["path"].removeprefix(scope.get("root_path", ""))
+        inference = scope["method"] == "POST" and path == INFERENCE_PATH
+        declared = dict(scope["headers"]).get(b"content-length")
+        if declared is not None and int(declared) > self.max_upload_bytes:
+            await self._refuse(self._too_large(), inference, scope, receive, send)
+        elif not inference:
+            await self.app(scope, self._limited(receive), send)
+        elif self.in_flight >= self.max_in_flight:
+            await self._refuse(self._overloaded(), inference, scope, receive, send)
+        else:
+            await self._admit(scope, self._limited(receive), send)
+
+    async def _refuse(
+        self, error: ApiError, counted: bool, scope: Scope, receive: Receive, send: Send
+    ) -> None:
+        """Answer ``error`` without reading the body (uvicorn discards what is left of it)."""
+        if counted:
+            self.metrics.failure.labels(error.code).inc()
+        response = error_response(error.status_code, error.code, error.message, error.headers)
+        await response(scope, receive, send)
+
+    def _limited(self, receive: Receive) -> Receive:
+        """``receive`` that raises 413 once the body passes the byte limit."""
+        received = 0
+
+        async def wrapped() -> Message:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.max_upload_bytes:
+                    raise self._too_large()
+            return message
+
+        return wrapped
+
+    async def _admit(self, scope: Scope, receive: Receive, send: Send) -> None:
+        self.in_flight += 1
+        self.metrics.pending.inc()
+        start = time.perf_counter()
+        status = 500
+
+        async def send_status(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_status)
+        except Exception:
+            self.metrics.failure.labels("internal_error").inc()
+            raise
+        else:
+            if status < 400:
+                self.metrics.success.inc()
+                self.metrics.request_duration.observe(time.perf_counter() - start)
+            else:
+                reason = scope.get("state", {}).get("error_code", f"http_{status}")
+                self.metrics.failure.labels(reason).inc()
+        finally:
+            self.in_flight -= 1
+            self.metrics.pending.dec()

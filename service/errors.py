@@ -1,0 +1,125 @@
+"""One JSON error shape for every failure: ``{"error": {"code", "message", "details"?}}``.
+
+``ApiError`` is raised by our code with a stable ``code``; FastAPI's own validation errors,
+Starlette's 404/405 and anything unexpected are turned into the same shape. Each handler
+records the code in the request state, where the admission middleware reads it for the
+failure counter.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException
+
+from sdcnet.service.schemas import ErrorBody, ErrorDetail, ErrorInfo
+
+#: Codes for HTTP errors raised by the framework rather than by us.
+_STATUS_CODES = {
+    400: "bad_request",
+    404: "not_found",
+    405: "method_not_allowed",
+    413: "too_large",
+    415: "unsupported_media_type",
+}
+_LOCATIONS = {"body": "form", "query": "query", "path": "path", "header": "header"}
+_LOCATION_NAMES = {"form": "form field", "query": "query parameter", "path": "path parameter"}
+
+
+class ApiError(HTTPException):
+    """An answer other than 2xx, with a stable machine-readable ``code``.
+
+    A Starlette ``HTTPException`` so that FastAPI passes it through untouched even when it is
+    raised while the request body is being read.
+    """
+
+    def __init__(
+        self,
+        status: int,
+        code: str,
+        message: str,
+        headers: Mapping[str, str] | None = None,
+    ):
+        super().__init__(status_code=status, detail=message, headers=dict(headers or {}))
+        self.code = code
+        self.message = message
+
+
+def error_response(
+    status: int,
+    code: str,
+    message: str,
+    headers: Mapping[str, str] | None = None,
+    details: list[ErrorDetail] | None = None,
+) -> JSONResponse:
+    """The JSON answer for an error."""
+    body = ErrorBody(error=ErrorInfo(code=code, message=message, details=details))
+    return JSONResponse(body.model_dump(exclude_none=True), status, headers=headers)
+
+
+def _answer(request: Request, status: int, code: str, message: str, **kwargs) -> JSONResponse:
+    request.state.error_code = code
+    return error_response(status, code, message, **kwargs)
+
+
+async def _api_error(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ApiError)
+    return _answer(request, exc.status_code, exc.code, exc.message, headers=exc.headers)
+
+
+async def _http_error(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, HTTPException)
+    code = _STATUS_CODES.get(exc.status_code, f"http_{exc.status_code}")
+    message = {
+        404: f"no endpoint {request.url.path}; the API is listed at /docs",
+        405: f"{request.method} is not allowed on {request.url.path}",
+    }.get(exc.status_code, str(exc.detail))
+    return _answer(request, exc.status_code, code, message, headers=exc.headers)
+
+
+def _detail(error: dict) -> ErrorDetail:
+    where, *path = (str(part) for part in error.get("loc", ("request",)))
+    return ErrorDetail(
+        location=_LOCATIONS.get(where, where), field=".".join(path), message=error["msg"]
+    )
+
+
+async def _validation_error(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    details = [_detail(error) for error in exc.errors()]
+    message = "; ".join(
+        f"{_LOCATION_NAMES.get(d.location, d.location)} '{d.field}': {d.message}"
+        if d.field
+        else f"{d.location}: {d.message}"
+        for d in details
+    )
+    return _answer(request, 422, "invalid_request", message, details=details)
+
+
+async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+    # Starlette re-raises the exception after this answer, and uvicorn logs its traceback.
+    return _answer(request, 500, "internal_error", "internal error; the server log has details")
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Route every error of ``app`` through the one JSON shape."""
+    app.add_exception_handler(ApiError, _api_error)
+    app.add_exception_handler(HTTPException, _http_error)
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(Exception, _unexpected)
+
+
+#: For route declarations: the error answers /docs lists.
+ERROR_RESPONSES: dict[int | str, dict] = {
+    status: {"model": ErrorBody, "description": description}
+    for status, description in {
+        400: "unreadable file, pickled .npy or malformed body",
+        413: "image above the pixel limit or body above the byte limit",
+        415: "file type not accepted",
+        422: "invalid field: dtype, shape, depth values, missing field, unknown format",
+        503: "overloaded (Retry-After) or not ready",
+    }.items()
+}

@@ -1,0 +1,132 @@
+"""One ``POST /complete`` from uploaded bytes to answer bytes, run in a worker thread.
+
+decode (bytes -> validated arrays) -> queue (wait for the model) -> inference
+(``sdcnet.pipeline.complete``: crop to the LIDAR-bounded region, model, paste back) ->
+encode (point cloud, optional outlier removal, serialisation). Each phase is timed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from sdcnet.camera import Intrinsics
+from sdcnet.export.runtime import OnnxModel
+from sdcnet.pipeline import Completion, complete
+from sdcnet.pointcloud import back_project, statistical_outliers
+from sdcnet.service.decode import check_same_size, decode_gray, decode_sparse
+from sdcnet.service.encode import encode
+from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, ResponseFormat, Timings
+
+PHASES = ("decode", "queue", "inference", "encode")
+
+
+class PhaseTimer:
+    """Seconds spent per named phase."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, phase: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[phase] = self.seconds.get(phase, 0.0) + time.perf_counter() - start
+
+    def timings(self) -> Timings:
+        return Timings(**{f"{p}_ms": round(self.seconds.get(p, 0.0) * 1e3, 3) for p in PHASES})
+
+    def server_timing(self) -> str:
+        """The ``Server-Timing`` header (milliseconds), shown by browsers' developer tools."""
+        return ", ".join(f"{p};dur={self.seconds.get(p, 0.0) * 1e3:.3f}" for p in PHASES)
+
+
+class Engine:
+    """The model, loaded once, run one request at a time: onnxruntime already spreads one
+    inference over all its intra-op threads, so running two at once only makes both slower."""
+
+    def __init__(self, model: OnnxModel):
+        self.model = model
+        self._lock = threading.Lock()
+
+    def complete(self, gray: np.ndarray, sparse: np.ndarray, timer: PhaseTimer) -> Completion:
+        with timer("queue"):
+            self._lock.acquire()
+        try:
+            with timer("inference"):
+                return complete(self.model.run, gray, sparse, self.model.stride)
+        finally:
+            self._lock.release()
+
+
+@dataclass(frozen=True)
+class CompletionRequest:
+    """The fields of one request; intrinsics in pixels, ``None`` = the model's, scaled."""
+
+    gray: bytes
+    sparse: bytes
+    depth_scale: float | None = None
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    outlier_removal: bool = False
+    format: ResponseFormat = ResponseFormat.json
+
+
+@dataclass(frozen=True)
+class Answer:
+    body: bytes
+    timer: PhaseTimer
+
+
+def request_intrinsics(
+    default: Intrinsics, width: int, height: int, req: CompletionRequest
+) -> Intrinsics:
+    """The request's intrinsics; each value not given is the model's, scaled to the image."""
+    base = default.scaled(width, height)
+    return Intrinsics(
+        base.fx if req.fx is None else req.fx,
+        base.fy if req.fy is None else req.fy,
+        base.cx if req.cx is None else req.cx,
+        base.cy if req.cy is None else req.cy,
+        width,
+        height,
+    )
+
+
+def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
+    """Decode, complete, encode one request; raises ``ApiError`` for bad input."""
+    timer = PhaseTimer()
+    with timer("decode"):
+        gray = decode_gray(req.gray, max_pixels)
+        sparse = decode_sparse(req.sparse, req.depth_scale, max_pixels)
+        check_same_size(gray, sparse)
+    result = engine.complete(gray, sparse, timer)
+    height, width = gray.shape
+    with timer("encode"):
+        K = request_intrinsics(engine.model.info.intrinsics, width, height, req)
+        valid = result.mask & (result.depth > 0)
+        kept = statistical_outliers(result.depth, valid, K) if req.outlier_removal else valid
+        points = back_project(result.depth, kept, K)
+        encoded = encode(req.format, result.depth, result.mask.astype(np.uint8), points)
+    summary = CompletionSummary(
+        model_version=engine.model.info.version,
+        provider=engine.model.provider,
+        width=width,
+        height=height,
+        intrinsics=CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
+        returns=int(np.count_nonzero(sparse)),
+        foreground_px=int(np.count_nonzero(result.mask)),
+        point_count=len(points),
+        outliers_removed=int(np.count_nonzero(valid)) - len(points),
+        timings=timer.timings(),
+    )
+    return Answer(encoded.finish(summary), timer)

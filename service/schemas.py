@@ -1,0 +1,118 @@
+"""Response bodies of the service (pydantic): what /docs shows and what clients parse."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Any
+
+from pydantic import BaseModel, Field
+
+
+class ResponseFormat(StrEnum):
+    """How ``POST /complete`` answers."""
+
+    json = "json"  # arrays as base64 of .npy bytes, in a JSON document
+    npz = "npz"  # one zip: depth.npy, mask.npy, points.npy, meta.json
+    ply = "ply"  # the point cloud alone, binary little-endian PLY
+
+
+class ErrorDetail(BaseModel):
+    location: str = Field(description="'form', 'query', 'path' or 'header'")
+    field: str
+    message: str
+
+
+class ErrorInfo(BaseModel):
+    code: str = Field(description="stable, machine-readable reason, e.g. 'no_returns'")
+    message: str = Field(description="what is wrong, for a person")
+    details: list[ErrorDetail] | None = Field(
+        default=None, description="one entry per invalid field (request validation errors)"
+    )
+
+
+class ErrorBody(BaseModel):
+    """The one shape of every error answer, whatever the status."""
+
+    error: ErrorInfo
+
+
+class EncodedArray(BaseModel):
+    dtype: str = Field(description="numpy dtype, e.g. 'float32'")
+    shape: list[int]
+    npy_base64: str = Field(description="base64 of the array's .npy bytes (numpy.load reads it)")
+
+
+class CameraIntrinsics(BaseModel):
+    fx: float = Field(description="focal length along x, pixels")
+    fy: float = Field(description="focal length along y, pixels")
+    cx: float = Field(description="principal point column, pixels")
+    cy: float = Field(description="principal point row, pixels")
+
+
+class Timings(BaseModel):
+    """Server-side time per phase, milliseconds."""
+
+    decode_ms: float = Field(description="image and depth bytes to validated arrays")
+    queue_ms: float = Field(description="waiting for the model (one inference at a time)")
+    inference_ms: float = Field(description="crop, model, paste back")
+    encode_ms: float = Field(description="point cloud (and outlier removal), array encoding")
+
+
+class CompletionSummary(BaseModel):
+    """Everything about one answer except its arrays (npz: meta.json)."""
+
+    model_version: str
+    provider: str = Field(description="onnxruntime execution provider that ran the model")
+    width: int = Field(description="image width, pixels")
+    height: int = Field(description="image height, pixels")
+    intrinsics: CameraIntrinsics = Field(description="used to back-project the points")
+    returns: int = Field(description="LIDAR returns in the sparse map")
+    foreground_px: int = Field(description="pixels in the mask")
+    point_count: int = Field(description="points in the cloud")
+    outliers_removed: int = Field(description="points dropped by statistical outlier removal")
+    timings: Timings
+
+
+class CompletionResponse(CompletionSummary):
+    """``POST /complete?format=json``: the summary plus the arrays."""
+
+    depth: EncodedArray = Field(description="float32 (H, W) metres, 0 outside the mask")
+    mask: EncodedArray = Field(description="uint8 (H, W), 1 = spacecraft")
+    points: EncodedArray = Field(description="float32 (N, 3) camera frame, metres")
+
+
+class Liveness(BaseModel):
+    live: bool
+
+
+class Readiness(BaseModel):
+    ready: bool
+
+
+class TensorMetadata(BaseModel):
+    """An input or output of the model graph (KServe v2 style)."""
+
+    name: str
+    datatype: str = Field(description="KServe v2 datatype, e.g. 'FP32'")
+    shape: list[int] = Field(description="-1 = any size")
+    description: str = ""
+
+
+class ModelMetadata(BaseModel):
+    """``GET /model`` and ``GET /v2/models/sdcnet``: KServe v2 model metadata plus sdcnet's."""
+
+    name: str
+    versions: list[str]
+    platform: str
+    inputs: list[TensorMetadata]
+    outputs: list[TensorMetadata]
+    version: str
+    provider: str
+    threads: int = Field(description="onnxruntime intra-op threads")
+    stride: int = Field(description="crops are aligned to this many pixels")
+    training_size: int = Field(description="image size the intrinsics refer to, pixels")
+    intrinsics: CameraIntrinsics = Field(
+        description="default intrinsics at training_size; scaled to each request's image size"
+    )
+    metrics: dict[str, Any] = Field(description="the model card's headline metrics")
+    limits: dict[str, int] = Field(description="max_pixels, max_upload_bytes, max_in_flight")

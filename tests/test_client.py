@@ -1,0 +1,215 @@
+"""The client (Python API and ``sdc-client``) against the real service in a subprocess."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import socket
+import subprocess
+import sys
+import threading
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from fixtures_runtime import MODEL_VERSION, npy_bytes, png_bytes, random_model, running_service
+from fixtures_runtime import sample as generated
+
+from sdcnet.client.api import Client, ServiceError
+from sdcnet.client.cli import main
+from sdcnet.client.outputs import OUTPUT_FILES
+from sdcnet.pointcloud import read_ply
+
+
+@pytest.fixture(scope="module")
+def url(tmp_path_factory):
+    model = random_model(tmp_path_factory.getbasetemp())
+    log = tmp_path_factory.mktemp("client-service") / "serve.log"
+    # one request at a time, so that concurrent clients meet 503s and must retry
+    with running_service(model, log, "--max-in-flight=1", "--retry-after=1") as address:
+        yield address
+
+
+@pytest.fixture(scope="module")
+def frame_files(tmp_path_factory):
+    """The 256 x 256 test frame as files: gray.png and sparse.npy."""
+    folder = tmp_path_factory.mktemp("frame")
+    s = generated(256)
+    cv2.imwrite(str(folder / "gray.png"), s.gray)
+    np.save(folder / "sparse.npy", s.sparse)
+    return folder / "gray.png", folder / "sparse.npy"
+
+
+def service_answer(url: str, gray: bytes, sparse: bytes) -> dict[str, np.ndarray]:
+    """The service's own JSON answer, decoded: what the client's files must hold."""
+    files = {"gray": ("g.png", gray), "sparse": ("s.npy", sparse)}
+    body = httpx.post(f"{url}/complete", files=files, timeout=60).json()
+    return {
+        k: np.load(io.BytesIO(base64.b64decode(body[k]["npy_base64"])), allow_pickle=False)
+        for k in ("depth", "mask", "points")
+    }
+
+
+def test_infer_writes_four_files_that_match_the_service(url, frame_files, tmp_path, capsys):
+    gray, sparse = frame_files
+    out = tmp_path / "out"
+    assert main(["infer", str(gray), str(sparse), "--url", url, "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+
+    expected = service_answer(url, gray.read_bytes(), sparse.read_bytes())
+    depth = np.load(out / "depth.npy", allow_pickle=False)
+    np.testing.assert_array_equal(depth, expected["depth"])
+    mask = cv2.imread(str(out / "mask.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(mask, expected["mask"] * 255)
+
+    header = (out / "points.ply").read_bytes().split(b"end_header\n")[0].decode()
+    assert f"element vertex {len(expected['points'])}" in header
+    points, comments = read_ply(out / "points.ply")
+    np.testing.assert_array_equal(points, expected["points"])
+    assert len(points) == np.count_nonzero(expected["mask"]) > 0
+    assert f"model_version {MODEL_VERSION}" in comments
+
+    preview = cv2.imread(str(out / "preview.png"))
+    assert preview.shape == (320, 4 * 320 + 3 * 4, 3)
+    printed = capsys.readouterr().out
+    assert MODEL_VERSION in printed and f"points    {len(points):,}" in printed
+    assert len(printed.splitlines()) <= 24  # one screen
+
+
+def test_python_api_returns_arrays(url, frame_files):
+    s = generated(256)
+    expected = service_answer(url, png_bytes(s.gray), npy_bytes(s.sparse))
+    with Client(url) as client:
+        from_arrays = client.complete(s.gray, s.sparse)
+        from_files = client.complete(*frame_files)
+    for result in (from_arrays, from_files):
+        np.testing.assert_array_equal(result.depth, expected["depth"])
+        np.testing.assert_array_equal(result.mask, expected["mask"].astype(bool))
+        np.testing.assert_array_equal(result.points, expected["points"])
+        assert result.model_version == MODEL_VERSION
+        assert result.provider == "CPUExecutionProvider"
+        assert set(result.timings_ms) == {"decode_ms", "queue_ms", "inference_ms", "encode_ms"}
+
+
+def test_concurrent_clients_retry_503_and_all_succeed(url):
+    s = generated(1024)
+    overloaded = 'sdcnet_inference_request_failure_total{reason="overloaded"}'
+
+    def refused() -> float:
+        lines = httpx.get(f"{url}/metrics").text.splitlines()
+        return sum(float(line.split()[-1]) for line in lines if line.startswith(overloaded))
+
+    before = refused()
+    results, errors = [], []
+    start = threading.Barrier(3)
+
+    def run(client: Client) -> None:
+        start.wait()
+        try:
+            results.append(client.complete(s.gray, s.sparse))
+        except Exception as exc:
+            errors.append(exc)
+
+    with Client(url, retries=8) as client:
+        threads = [threading.Thread(target=run, args=(client,)) for _ in range(3)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    assert not errors and len(results) == 3
+    assert refused() > before  # some were refused with 503 and went through on a retry
+    assert max(r.latency_s for r in results) >= 1.0  # ... after Retry-After: 1
+
+
+def test_a_missing_or_unreadable_file_exits_2(frame_files, tmp_path, capsys):
+    gray, sparse = frame_files
+    assert main(["infer", str(tmp_path / "nope.png"), str(sparse)]) == 2
+    assert f"gray image file not found: {tmp_path / 'nope.png'}" in capsys.readouterr().err
+    assert main(["infer", str(gray), str(tmp_path)]) == 2
+    assert "sparse depth is a directory" in capsys.readouterr().err
+
+
+def test_a_4xx_answer_exits_3_with_the_service_message(url, tmp_path, capsys):
+    s = generated(256)
+    np.save(tmp_path / "small.npy", np.pad(s.sparse, ((0, 0), (0, 8))))
+    cv2.imwrite(str(tmp_path / "gray.png"), s.gray)
+    argv = ["infer", str(tmp_path / "gray.png"), str(tmp_path / "small.npy"), "--url", url]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 3
+    err = capsys.readouterr().err
+    assert "422 wrong_shape" in err and "gray is 256 x 256 but sparse is 264 x 256" in err
+    assert not (tmp_path / "out").exists()
+    with Client(url) as client, pytest.raises(ServiceError) as raised:
+        client.complete(s.gray, np.zeros_like(s.sparse))
+    assert (raised.value.status, raised.value.code) == (422, "no_returns")
+
+
+def test_an_unreachable_server_exits_4(frame_files, capsys):
+    with socket.socket() as sock:  # a port that nothing listens on
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    gray, sparse = frame_files
+    url = f"http://127.0.0.1:{port}"
+    assert main(["infer", str(gray), str(sparse), "--url", url, "--retries", "1"]) == 4
+    assert f"cannot reach the sdcnet service at {url}" in capsys.readouterr().err
+    assert main(["health", "--url", url]) == 4
+
+
+def test_health_and_model_commands(url, capsys):
+    assert main(["health", "--url", url]) == 0
+    assert capsys.readouterr().out.strip() == f"{url}: live yes, ready yes"
+    assert main(["model", "--url", url]) == 0
+    assert json.loads(capsys.readouterr().out)["version"] == MODEL_VERSION
+
+
+def test_batch_goes_on_past_a_failed_pair(url, tmp_path, capsys):
+    s = generated(256)
+    pairs = tmp_path / "pairs"
+    pairs.mkdir()
+    for name in ("a", "b", "c"):
+        cv2.imwrite(str(pairs / f"{name}.png"), s.gray)
+    np.save(pairs / "a.npy", s.sparse)
+    np.save(pairs / "b.npy", np.pad(s.sparse, ((0, 4), (0, 0))))  # wrong size: this one fails
+    millimetres = np.round(s.sparse * 1000).astype(np.uint16)
+    cv2.imwrite(str(pairs / "c.sparse.png"), millimetres)  # 16-bit PNG, needs a scale
+    out = tmp_path / "out"
+    argv = ["batch", str(pairs), "--out", str(out), "--url", url, "--depth-scale", "0.001"]
+    assert main([*argv, "--concurrency", "2", "--no-progress"]) == 1
+    assert sorted(p.name for p in out.iterdir()) == ["a", "c"]
+    assert sorted(p.name for p in (out / "c").iterdir()) == sorted(OUTPUT_FILES)
+    report = capsys.readouterr().out
+    assert "2 of 3 pairs completed, 1 failed" in report
+    assert "FAILED b: service answered 422 wrong_shape" in report
+
+
+def test_batch_of_a_manifest_and_of_a_dataset_split(url, frame_files, tiny_dataset, tmp_path):
+    gray, sparse = frame_files
+    manifest = gray.parent / "pairs.jsonl"
+    line = {"id": "first", "gray": gray.name, "sparse": sparse.name, "fx": 500.0}
+    manifest.write_text(json.dumps(line) + "\n")
+    assert main(["batch", str(manifest), "--out", str(tmp_path / "m"), "--url", url]) == 0
+    assert (tmp_path / "m" / "first" / "points.ply").is_file()
+
+    out = tmp_path / "d"
+    argv = ["batch", str(tiny_dataset), "--out", str(out), "--url", url, "--split", "test"]
+    assert main([*argv, "--no-progress", "--concurrency", "1"]) == 0
+    test_ids = [
+        record["id"]
+        for record in map(json.loads, (tiny_dataset / "manifest.jsonl").read_text().splitlines())
+        if record["split"] == "test"
+    ]
+    assert sorted(p.name for p in out.iterdir()) == sorted(test_ids)
+
+
+def test_the_client_imports_no_torch_onnxruntime_or_fastapi():
+    code = (
+        "import sys, sdcnet.client.cli, sdcnet.client.api\n"
+        "heavy = {'torch', 'onnxruntime', 'fastapi', 'sdcnet.service'} & set(sys.modules)\n"
+        "assert not heavy, heavy\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-m", "sdcnet.client", "--help"], capture_output=True, text=True
+    )
+    assert result.returncode == 0 and "infer" in result.stdout and "batch" in result.stdout
