@@ -69,3 +69,18 @@ def write_markdown(name: str, title: str, body: str) -> Path:
     path = DOCS / f"{name}.md"
     path.write_text(f"# {title}\n\n{body.strip()}\n")
     return path
+
+
+def onnx_variants(fp32: Path, threads: int) -> dict:
+    """'onnxruntime FP32/FP16/INT8' -> loaded CPU model, for the files that exist beside ``fp32``
+    (``NAME.onnx``, ``NAME.fp16.onnx``, ``NAME.int8.onnx``, as ``sdc-export --variants`` writes)."""
+    from sdcnet.export.runtime import OnnxModel
+
+    found = {}
+    for label, suffix in (("FP32", ""), ("FP16", ".fp16"), ("INT8", ".int8")):
+        path = fp32.with_suffix(f"{suffix}.onnx")
+        if path.exists():
+            found[f"onnxruntime {label}"] = OnnxModel(
+                path, provider="CPUExecutionProvider", threads=threads
+            )
+    return found

@@ -15,7 +15,7 @@ import numpy as np
 
 from sdcnet.client.api import Completion, InputError, Source, read_file
 from sdcnet.pointcloud import write_ply
-from sdcnet.visualize import colorize_depth, gray_bgr, labelled, montage, object_crop
+from sdcnet.visualize import colorize_depth, gray_bgr, labelled, montage, object_crop, side_view
 
 OUTPUT_FILES = ("depth.npy", "mask.png", "points.ply", "preview.png")
 
@@ -41,23 +41,6 @@ def gray_for_display(image: np.ndarray) -> np.ndarray:
         return image
     top = max(float(image.max()), 1.0)
     return (image.astype(np.float32) * (255.0 / top)).astype(np.uint8)
-
-
-def side_view(points: np.ndarray, size: int = 320, margin: float = 0.08) -> np.ndarray:
-    """BGR picture of the cloud seen from the camera's right (+x): depth z to the right, y
-    down, one metric scale for both axes, coloured by depth like the depth map."""
-    image = np.zeros((size, size, 3), np.uint8)
-    if len(points) == 0:
-        return image
-    z, y = points[:, 2].astype(np.float64), points[:, 1].astype(np.float64)
-    extent = max(np.ptp(z), np.ptp(y), 1e-3)
-    scale = size * (1 - 2 * margin) / extent  # pixels per metre
-    u = ((z - (z.min() + z.max()) / 2) * scale + size / 2).astype(int).clip(0, size - 1)
-    v = ((y - (y.min() + y.max()) / 2) * scale + size / 2).astype(int).clip(0, size - 1)
-    colours = colorize_depth(points[:, 2][None, :])[0]
-    order = np.argsort(points[:, 0])  # the points nearest the viewer (largest x) drawn last
-    image[v[order], u[order]] = colours[order]
-    return image
 
 
 def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray:

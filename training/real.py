@@ -16,6 +16,7 @@ import numpy as np
 from sdcnet.camera import Intrinsics
 from sdcnet.metrics import MetricTable, frame_metrics
 from sdcnet.pipeline import ModelFn, complete
+from sdcnet.pointcloud import back_project
 from sdcnet.training.data.format import SampleStore
 from sdcnet.visualize import (
     colorize_depth,
@@ -40,12 +41,6 @@ def evaluate_per_model(
         tables[record["model_name"]].add(metrics)
         tables["all"].add(metrics)
     return dict(tables)
-
-
-def back_project(depth: np.ndarray, K: Intrinsics) -> np.ndarray:
-    """Camera-frame points (N, 3) in metres of the non-zero pixels of a depth map."""
-    v, u = np.nonzero(depth)
-    return (K.pixel_rays(u, v) * depth[v, u, None]).astype(np.float32)
 
 
 def error_map(pred: np.ndarray, mask: np.ndarray, gt: np.ndarray, alpha: float = 1.0) -> np.ndarray:
@@ -83,7 +78,7 @@ def gallery_row(model_fn: ModelFn, sample, stride: int, caption: str) -> list[np
         labelled(
             error_map(result.depth, result.mask, sample.depth)[window], f"MAEI {m['MAEI']:.2f} m"
         ),
-        labelled(side_view(back_project(result.depth, K)), "completed cloud, side"),
+        labelled(side_view(back_project(result.depth, result.mask, K)), "completed cloud, side"),
     ]
 
 
