@@ -23,8 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import torch
 
-from benchmarks.common import DOCS, cpu_description, write_markdown
-from sdcnet.export.runtime import OnnxModel
+from benchmarks.common import DOCS, cpu_description, onnx_variants, write_markdown
 from sdcnet.metrics import MetricTable, frame_metrics, markdown_table
 from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
@@ -68,15 +67,8 @@ def main(argv: list[str] | None = None) -> int:
         records = records[:: max(1, len(records) // args.limit)][: args.limit]
     model, _ = load_checkpoint(args.checkpoint)
     methods = {"PyTorch eager FP32": (torch_model_fn(model), model.config.stride)}
-    for name, suffix in (
-        ("onnxruntime FP32", ""),
-        ("onnxruntime FP16", ".fp16"),
-        ("onnxruntime INT8", ".int8"),
-    ):
-        path = args.onnx.with_suffix(f"{suffix}.onnx")
-        if path.exists():
-            runner = OnnxModel(path, provider="CPUExecutionProvider", threads=args.threads)
-            methods[name] = (runner.run, runner.stride)
+    for name, runner in onnx_variants(args.onnx, args.threads).items():
+        methods[name] = (runner.run, runner.stride)
     methods["classical fill (floor)"] = (torch_model_fn(ClassicalFill()), 64)
     results, latency = {}, {}
     for name, (fn, stride) in methods.items():

@@ -19,9 +19,15 @@ import numpy as np
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from benchmarks.common import DOCS, cpu_description, peak_gflops, time_calls, write_markdown
+from benchmarks.common import (
+    DOCS,
+    cpu_description,
+    onnx_variants,
+    peak_gflops,
+    time_calls,
+    write_markdown,
+)
 from sdcnet.export.cli import parity_frames
-from sdcnet.export.runtime import OnnxModel
 from sdcnet.training.checkpoint import load_checkpoint
 
 
@@ -55,15 +61,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     model, _ = load_checkpoint(args.checkpoint)
-    runners = {"PyTorch eager FP32": None}
-    for name, suffix in (
-        ("onnxruntime FP32", ".onnx"),
-        ("onnxruntime FP16", ".fp16.onnx"),
-        ("onnxruntime INT8", ".int8.onnx"),
-    ):
-        path = args.onnx.with_suffix(suffix) if suffix != ".onnx" else args.onnx
-        if path.exists():
-            runners[name] = OnnxModel(path, provider="CPUExecutionProvider", threads=args.threads)
+    runners = {"PyTorch eager FP32": None, **onnx_variants(args.onnx, args.threads)}
     peak, peak_note = peak_gflops(args.threads)
     rows, results = [], {}
     for size in (512, 1024):
