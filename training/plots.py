@@ -11,13 +11,15 @@ import matplotlib.pyplot as plt
 
 
 def learning_curves(history: list[dict], path: Path) -> None:
-    """Train loss, val IOU and val MATE / MAEI per epoch, one colour per stage."""
+    """Train loss, val IOU and val MATE / MAEI per epoch, one colour per stage; epochs are
+    counted through both stages."""
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    stage1_epochs = sum(1 for r in history if r["stage"] == 1)
     for stage, colour in ((1, "tab:blue"), (2, "tab:orange")):
         rows = [r for r in history if r["stage"] == stage]
         if not rows:
             continue
-        x = [r["epoch"] for r in rows]
+        x = [r["epoch"] + (stage1_epochs if stage == 2 else 0) for r in rows]
         label = "stage 1 (FSNet, BCE)" if stage == 1 else "stage 2 (FDCNet, L1)"
         axes[0].plot(x, [r["train_loss"] for r in rows], "o-", color=colour, label=label)
         axes[1].plot(x, [100 * r["IOU"] for r in rows], "o-", color=colour, label=label)
