@@ -12,12 +12,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 ModelFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 #: Margin around the LIDAR returns' bounding box, as a fraction of the image width (a 1024 px
-#: frame gets 48 px: ~4 beam spacings) plus a fraction of the box itself.
+#: frame of the paper's camera gets 48 px: ~4 beam spacings) plus a fraction of the box itself.
 MARGIN_OF_IMAGE = 48 / 1024
 MARGIN_OF_BOX = 0.15
 
@@ -80,22 +81,70 @@ class Completion:
     region: Region
 
 
+def resample_sparse(sparse: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Move every LIDAR return to its pixel in a grid of ``shape`` (the nearest wins a pixel).
+
+    Interpolating a sparse map would invent depths between returns; this keeps each return
+    once, at its scaled position (pixel centres at integer coordinates).
+    """
+    H, W = sparse.shape
+    rows, cols = np.nonzero(sparse > 0)
+    sy, sx = shape[0] / H, shape[1] / W
+    r = np.clip(np.round((rows + 0.5) * sy - 0.5).astype(int), 0, shape[0] - 1)
+    c = np.clip(np.round((cols + 0.5) * sx - 0.5).astype(int), 0, shape[1] - 1)
+    out = np.full(shape, np.inf, np.float32)
+    np.minimum.at(out, (r, c), sparse[rows, cols].astype(np.float32))
+    out[np.isinf(out)] = 0
+    return out
+
+
+def _run_at_scale(
+    model: ModelFn, gray: np.ndarray, sparse: np.ndarray, zoom: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Model outputs (depth, probability) for one crop, run ``zoom`` times larger."""
+    h, w = gray.shape
+    if abs(zoom - 1) < 0.05:
+        g, s = gray, sparse
+    else:
+        size = (max(1, round(w * zoom)), max(1, round(h * zoom)))
+        g = cv2.resize(gray, size, interpolation=cv2.INTER_AREA if zoom < 1 else cv2.INTER_LINEAR)
+        s = resample_sparse(sparse, (size[1], size[0]))
+    depth, prob = model(g[None, None], np.ascontiguousarray(s, np.float32)[None, None])
+    depth, prob = depth[0, 0], prob[0, 0]
+    if depth.shape != (h, w):
+        depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_LINEAR)
+        prob = cv2.resize(prob, (w, h), interpolation=cv2.INTER_LINEAR)
+    return depth, prob
+
+
 def complete(
-    model: ModelFn, gray: np.ndarray, sparse: np.ndarray, stride: int = 64, threshold: float = 0.5
+    model: ModelFn,
+    gray: np.ndarray,
+    sparse: np.ndarray,
+    stride: int = 64,
+    threshold: float = 0.5,
+    zoom: float = 1.0,
 ) -> Completion:
     """Run ``model`` on the spacecraft's region of one frame. gray uint8/uint16 (H, W);
-    sparse float32 (H, W) metres, 0 = no return."""
+    sparse float32 (H, W) metres, 0 = no return.
+
+    ``zoom`` resamples the crop before the network so that its pixels match those the model
+    was trained on (the model's focal length in pixels over this image's, e.g. 2 for a
+    512 x 512 image of the paper's camera); the answer comes back at the image's resolution.
+    """
     if gray.shape != sparse.shape:
         raise ValueError(f"gray {gray.shape} and sparse {sparse.shape} differ in size")
-    region = region_of_interest(sparse, stride)
+    if not zoom > 0:
+        raise ValueError(f"zoom must be positive, got {zoom}")
+    region = region_of_interest(sparse, max(1, round(stride / zoom)))
     rows, cols = region.slices
-    g = normalise_gray(gray[rows, cols])[None, None]
-    s = np.ascontiguousarray(sparse[rows, cols], dtype=np.float32)[None, None]
-    depth_crop, prob_crop = model(g, s)
+    depth_crop, prob_crop = _run_at_scale(
+        model, normalise_gray(gray[rows, cols]), sparse[rows, cols], zoom
+    )
     probability = np.zeros(gray.shape, np.float32)
-    probability[rows, cols] = prob_crop[0, 0]
+    probability[rows, cols] = prob_crop
     mask = probability > threshold
     depth = np.zeros(gray.shape, np.float32)
-    depth[rows, cols] = depth_crop[0, 0]
+    depth[rows, cols] = depth_crop
     depth[~mask] = 0
     return Completion(depth, mask, probability, region)
