@@ -33,11 +33,13 @@ RUN test -f models/sdcnet.onnx \
 # ---------------------------------------------------------------------------------------------
 # CPU: a virtual environment built here, copied alone into a clean slim image (no compilers,
 # no pip cache, no sources).
+# The import check runs with -P: from /src, a plain python -c would import the source folder
+# sdcnet/ (no service/ in it) instead of the installed package.
 FROM source AS build
 RUN python -m venv /opt/venv \
     && /opt/venv/bin/pip install --no-cache-dir --disable-pip-version-check \
         -c constraints.txt '.[serve,client]' \
-    && /opt/venv/bin/python -c "import sdcnet.service.app, sdcnet.client.cli, sdcnet.models"
+    && /opt/venv/bin/python -P -c "import sdcnet.service.app, sdcnet.client.cli, sdcnet.models"
 
 # ---------------------------------------------------------------------------------------------
 # CUDA: the same install on the CUDA base (its Python), with onnxruntime-gpu in place of
@@ -56,7 +58,7 @@ RUN python3 -m venv /opt/venv \
     && /opt/venv/bin/pip uninstall -y onnxruntime \
     && /opt/venv/bin/pip install --no-cache-dir --disable-pip-version-check \
         "onnxruntime-gpu==${ONNXRUNTIME_GPU_VERSION}" \
-    && /opt/venv/bin/python -c "import sdcnet.service.app, sdcnet.client.cli, sdcnet.models"
+    && /opt/venv/bin/python -P -c "import sdcnet.service.app, sdcnet.client.cli, sdcnet.models"
 
 FROM ${CUDA_IMAGE} AS cuda
 # hadolint ignore=DL3008
@@ -69,6 +71,7 @@ COPY --from=cuda-build /opt/venv /opt/venv
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
+    HOME=/tmp \
     SDCNET_HOST=0.0.0.0 \
     SDCNET_PORT=8000
 USER 10001:10001
@@ -86,6 +89,7 @@ COPY --from=build /opt/venv /opt/venv
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
+    HOME=/tmp \
     SDCNET_HOST=0.0.0.0 \
     SDCNET_PORT=8000
 USER 10001:10001

@@ -42,3 +42,11 @@ clean-venv:
 SERVE_ARGS ?=
 serve: $(STAMP)
 	$(VENV)/bin/sdc-serve $(SERVE_ARGS)
+
+## docker-check: build the CPU image with podman and run it for real: serve a generated frame,
+## compare with onnxruntime on the host, healthcheck, non-root, no torch; skips (exit 0, says
+## why) without root or ../shared/container. DOCKER_CHECK_ARGS="--model PATH" for another model
+.PHONY: docker-check
+DOCKER_CHECK_ARGS ?=
+docker-check: $(STAMP)
+	bash docker/check.sh $(DOCKER_CHECK_ARGS)
