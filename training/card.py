@@ -62,8 +62,9 @@ def model_card(
         f"{data.get('models')} models x {data.get('views')} views; models per split "
         f"{data.get('split_models')}). Test models are never seen in training.",
         f"- Command: `{config.get('command', '?')}`",
-        f"- Hardware: {state.get('hardware', '?')}; wall time {seconds / 60:.0f} min "
-        f"({stage_epochs[1]} FSNet epochs, {stage_epochs[2]} FDCNet epochs).",
+        f"- Hardware: {state.get('hardware', '?')}; {seconds / 60:.0f} min of training and "
+        f"validation up to this checkpoint ({stage_epochs[1]} FSNet epochs, then the best of "
+        f"{config.get('epochs', '?')} FDCNet epochs: epoch {stage_epochs[2]}).",
         "- Optimiser: Adam, cosine decay per stage; stage 1 BCE on the foreground (eq. 6), stage 2",
         "  L1 on predicted ∩ true foreground (eq. 7) with FSNet frozen. Best epoch by val MATE.",
         "",
