@@ -3,7 +3,9 @@
 A pure ASGI middleware, so that it can answer before the body is read:
 
 - every request: a body larger than ``max_upload_bytes`` gets 413, from its Content-Length
-  when declared, else as soon as the streamed bytes pass the limit;
+  when declared, else as soon as the streamed bytes pass the limit; a body that stalls for
+  ``body_timeout_s`` between two chunks (a client that sent less than its Content-Length and
+  waits, or a slow-loris) gets 408, so that it cannot hold an in-flight place for ever;
 - ``POST /complete``: at most ``max_in_flight`` at once, the next ones get 503 with
   Retry-After at once (no unbounded queue; Triton and Ray Serve do the same); the pending gauge,
   the success / failure counters and the request latency are kept here, where every outcome
@@ -12,6 +14,7 @@ A pure ASGI middleware, so that it can answer before the body is read:
 
 from __future__ import annotations
 
+import asyncio
 import time
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -32,12 +35,14 @@ class Admission:
         max_in_flight: int,
         max_upload_bytes: int,
         retry_after_s: int,
+        body_timeout_s: float,
     ):
         self.app = app
         self.metrics = metrics
         self.max_in_flight = max_in_flight
         self.max_upload_bytes = max_upload_bytes
         self.retry_after_s = retry_after_s
+        self.body_timeout_s = body_timeout_s
         self.in_flight = 0  # only touched on the event loop: no lock needed
 
     def _too_large(self) -> ApiError:
@@ -45,6 +50,14 @@ class Admission:
             413,
             "too_large",
             f"request body above this service's limit of {self.max_upload_bytes} bytes",
+        )
+
+    def _stalled(self) -> ApiError:
+        return ApiError(
+            408,
+            "request_timeout",
+            f"the request body stalled for more than {self.body_timeout_s:g} s (less data than "
+            "its Content-Length, or a cut connection?)",
         )
 
     def _overloaded(self) -> ApiError:
@@ -82,16 +95,25 @@ class Admission:
         await response(scope, receive, send)
 
     def _limited(self, receive: Receive) -> Receive:
-        """``receive`` that raises 413 once the body passes the byte limit."""
+        """``receive`` that raises 413 once the body passes the byte limit and 408 when the
+        next chunk of an unfinished body takes more than ``body_timeout_s``."""
         received = 0
+        finished = False
 
         async def wrapped() -> Message:
-            nonlocal received
-            message = await receive()
+            nonlocal received, finished
+            if finished:  # after the body, receive() waits for the disconnect: no deadline
+                return await receive()
+            try:
+                async with asyncio.timeout(self.body_timeout_s):
+                    message = await receive()
+            except TimeoutError:
+                raise self._stalled() from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > self.max_upload_bytes:
                     raise self._too_large()
+                finished = not message.get("more_body", False)
             return message
 
         return wrapped

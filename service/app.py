@@ -13,18 +13,19 @@ import json
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, FastAPI, File, Form, Query, Request, UploadFile
 from fastapi.responses import Response
+from pydantic import WithJsonSchema
 from starlette.concurrency import run_in_threadpool
 
 from sdcnet import __version__
-from sdcnet.export.runtime import OnnxModel
+from sdcnet.export.runtime import ModelLoadError, OnnxModel
 from sdcnet.service.admission import Admission
 from sdcnet.service.encode import MEDIA_TYPES
 from sdcnet.service.errors import ERROR_RESPONSES, ApiError, install_error_handlers
-from sdcnet.service.inference import CompletionRequest, Engine, answer
+from sdcnet.service.inference import CompletionRequest, Engine, answer, self_test
 from sdcnet.service.metrics import CONTENT_TYPE, ServiceMetrics
 from sdcnet.service.schemas import (
     CameraIntrinsics,
@@ -54,8 +55,20 @@ Every error, whatever its status, is `{"error": {"code": ..., "message": ...}}`
 
 
 def load_model(settings: Settings) -> OnnxModel:
-    """The ONNX model the settings name; raises ``ModelLoadError`` with a clear message."""
-    return OnnxModel(settings.model_path, settings.provider, settings.threads)
+    """The ONNX model the settings name, checked by one inference on a small frame; raises
+    ``ModelLoadError`` with a clear message, so that a file that loads but cannot serve stops
+    the start-up rather than failing every request."""
+    if settings.model_path.is_dir():
+        raise ModelLoadError(f"{settings.model_path} is a directory, not an ONNX model file")
+    try:
+        model = OnnxModel(settings.model_path, settings.provider, settings.threads)
+    except (ValueError, TypeError, KeyError) as exc:  # sdcnet metadata that does not parse
+        raise ModelLoadError(
+            f"{settings.model_path} is not a usable sdcnet model: its metadata does not parse "
+            f"({type(exc).__name__}: {exc})"
+        ) from exc
+    self_test(model)
+    return model
 
 
 async def get_engine(request: Request) -> Engine:
@@ -70,6 +83,25 @@ async def get_engine(request: Request) -> Engine:
             headers={"Retry-After": str(settings.retry_after_s)},
         )
     return engine
+
+
+async def strict_form(request: Request) -> None:
+    """FastAPI dependency: 422 for a form field the endpoint does not take or one sent twice.
+
+    FastAPI would silently ignore the first (a typo such as ``outlier_remova``) and keep only
+    the last of the second (two ``gray`` files): both are a client's mistake worth naming.
+    The form is the one FastAPI already parsed (Starlette caches it).
+    """
+    known = {field.alias for field in request.scope["route"].dependant.body_params}
+    names = [name for name, _ in (await request.form()).multi_items()]
+    unknown = sorted(set(names) - known)
+    repeated = sorted({name for name in names if names.count(name) > 1} & known)
+    problems = [f"unknown form field {name!r}" for name in unknown]
+    problems += [f"form field {name!r} given {names.count(name)} times" for name in repeated]
+    if problems:
+        raise ApiError(
+            422, "invalid_request", "; ".join(problems) + f"; the fields are {sorted(known)}"
+        )
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
@@ -142,19 +174,46 @@ async def model_metadata(engine: EngineDep, settings: SettingsDep) -> ModelMetad
     )
 
 
-@router.get("/metrics", tags=["probes"], response_class=Response)
+@router.get(
+    "/metrics",
+    tags=["probes"],
+    response_class=Response,
+    responses={
+        200: {
+            "description": "Prometheus text exposition format 0.0.4",
+            "content": {CONTENT_TYPE.split(";")[0]: {"schema": {"type": "string"}}},
+        }
+    },
+)
 async def metrics(request: Request) -> Response:
     """Prometheus text exposition."""
     return Response(request.app.state.metrics.render(), media_type=CONTENT_TYPE)
 
 
+_JSON_SCHEMA_BOUNDS = {"gt": "exclusiveMinimum", "ge": "minimum", "le": "maximum"}
+
+
+def optional_number(description: str, **bounds: float) -> Any:
+    """The type of an optional, finite numeric form field within ``bounds`` (gt, ge, le).
+
+    A form leaves such a field out, it cannot send null: the OpenAPI schema says a plain
+    number with its bounds (not "number or null"), so that clients and fuzzers generated from
+    the schema never send the string "null".
+    """
+    schema = {"type": "number", **{_JSON_SCHEMA_BOUNDS[k]: v for k, v in bounds.items()}}
+    return Annotated[
+        float | None,
+        Form(allow_inf_nan=False, description=description, **bounds),
+        WithJsonSchema(schema),
+    ]
+
+
 _DEFAULT_K = "default: the model's, scaled to the image size"
-FocalLength = Annotated[
-    float | None, Form(gt=0, allow_inf_nan=False, description=f"pixels; {_DEFAULT_K}")
-]
-PrincipalPoint = Annotated[
-    float | None, Form(allow_inf_nan=False, description=f"pixels; {_DEFAULT_K}")
-]
+FocalLength = optional_number(f"pixels; {_DEFAULT_K}", gt=0)
+PrincipalPoint = optional_number(f"pixels; {_DEFAULT_K}")
+#: Metres per unit of a 16-bit PNG sparse map, bounded so that every depth stays finite and
+#: non-zero in float32 (65535 units x 1000 m; 1 unit x 1 micrometre).
+DepthScale = optional_number("metres per unit of a 16-bit PNG sparse", ge=1e-6, le=1e3)
 
 
 @router.post(
@@ -166,9 +225,17 @@ PrincipalPoint = Annotated[
             "description": "format=json: this document; format=npz: a zip of depth.npy, "
             "mask.npy, points.npy and meta.json; format=ply: the point cloud as binary PLY",
             "content": {"application/octet-stream": {}},
+            "headers": {
+                "Server-Timing": {
+                    "description": "milliseconds per phase: decode, queue, inference, encode",
+                    "required": True,
+                    "schema": {"type": "string"},
+                }
+            },
         },
         **ERROR_RESPONSES,
     },
+    dependencies=[Depends(strict_form)],
 )
 async def complete(
     request: Request,
@@ -185,10 +252,7 @@ async def complete(
             "with depth_scale"
         ),
     ],
-    depth_scale: Annotated[
-        float | None,
-        Form(gt=0, allow_inf_nan=False, description="metres per unit of a 16-bit PNG sparse"),
-    ] = None,
+    depth_scale: DepthScale = None,
     fx: FocalLength = None,
     fy: FocalLength = None,
     cx: PrincipalPoint = None,
@@ -222,6 +286,28 @@ async def complete(
         name = f"sdcnet.{response_format.value}"
         headers["Content-Disposition"] = f'attachment; filename="{name}"'
     return Response(result.body, media_type=MEDIA_TYPES[response_format], headers=headers)
+
+
+def close_form_schemas(app: FastAPI) -> None:
+    """Make the OpenAPI schema of every multipart body say ``additionalProperties: false``, as
+    ``strict_form`` enforces (FastAPI leaves them open), so that clients and fuzzers generated
+    from the schema know an unknown field is refused."""
+    generate = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            schema = generate()  # FastAPI keeps it in app.openapi_schema
+            for operations in schema["paths"].values():
+                for operation in operations.values():
+                    body = operation.get("requestBody", {}).get("content", {})
+                    ref = body.get("multipart/form-data", {}).get("schema", {}).get("$ref")
+                    if ref:
+                        schema["components"]["schemas"][ref.rsplit("/", 1)[1]].update(
+                            additionalProperties=False
+                        )
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def create_app(settings: Settings | None = None, model: OnnxModel | None = None) -> FastAPI:
@@ -268,6 +354,8 @@ def create_app(settings: Settings | None = None, model: OnnxModel | None = None)
         max_in_flight=settings.max_in_flight,
         max_upload_bytes=settings.max_upload_bytes,
         retry_after_s=settings.retry_after_s,
+        body_timeout_s=settings.body_timeout_s,
     )
     app.include_router(router)
+    close_form_schemas(app)
     return app

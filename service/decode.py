@@ -20,6 +20,7 @@ from sdcnet.service.image_header import (
     HeaderError,
     ImageHeader,
     UnknownFormatError,
+    check_decoding_work,
     read_header,
 )
 
@@ -43,6 +44,7 @@ def _not_empty(field: str, data: bytes) -> None:
 
 
 def _header(field: str, data: bytes, max_pixels: int) -> ImageHeader:
+    """The image's header, checked against the pixel limit and for decoding work beyond it."""
     try:
         header = read_header(data)
     except UnknownFormatError as exc:
@@ -50,6 +52,10 @@ def _header(field: str, data: bytes, max_pixels: int) -> ImageHeader:
     except HeaderError as exc:
         raise ApiError(400, "unreadable_file", f"{field}: {exc}") from exc
     _too_large(field, header.width, header.height, max_pixels)
+    try:
+        check_decoding_work(data, header)
+    except HeaderError as exc:
+        raise ApiError(400, "unreadable_file", f"{field}: {exc}") from exc
     return header
 
 

@@ -22,6 +22,7 @@ _STATUS_CODES = {
     400: "bad_request",
     404: "not_found",
     405: "method_not_allowed",
+    408: "request_timeout",
     413: "too_large",
     415: "unsupported_media_type",
 }
@@ -112,14 +113,25 @@ def install_error_handlers(app: FastAPI) -> None:
     app.add_exception_handler(Exception, _unexpected)
 
 
+RETRY_AFTER_HEADER = {
+    "Retry-After": {
+        "description": "seconds to wait before retrying",
+        "required": True,
+        "schema": {"type": "integer", "minimum": 0},
+    }
+}
+
 #: For route declarations: the error answers /docs lists.
 ERROR_RESPONSES: dict[int | str, dict] = {
     status: {"model": ErrorBody, "description": description}
     for status, description in {
         400: "unreadable file, pickled .npy or malformed body",
+        408: "the request body stalled (less data than its Content-Length)",
         413: "image above the pixel limit or body above the byte limit",
         415: "file type not accepted",
-        422: "invalid field: dtype, shape, depth values, missing field, unknown format",
-        503: "overloaded (Retry-After) or not ready",
+        422: "invalid, unknown or repeated field: dtype, shape, depth values, missing field, "
+        "unknown format",
+        503: "overloaded or not ready; Retry-After says when to retry",
     }.items()
 }
+ERROR_RESPONSES[503]["headers"] = RETRY_AFTER_HEADER

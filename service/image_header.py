@@ -1,13 +1,21 @@
-"""The type and declared size of an image file, from its header alone.
+"""The type and declared size of an image file, from its header alone, and a bound on the work
+its decoding would take.
 
 The service checks an upload's pixel count against its limit before it decodes anything, so a
 small file declaring a huge image (a decompression bomb) costs nothing. Only the four formats
 the service accepts are recognised: PNG, TIFF (classic, first page), JPEG and BMP.
+
+A file within the pixel limit can still make its decoder work far beyond its size:
+``check_decoding_work`` refuses a PNG whose image data inflates beyond what its declared size
+needs (libpng inflates the excess too: a 1 MB file of zeros costs seconds) and a JPEG of more
+scans than any encoder writes (each progressive scan goes over the whole frame again).
 """
 
 from __future__ import annotations
 
+import re
 import struct
+import zlib
 from dataclasses import dataclass
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -16,6 +24,17 @@ _TIFF_SHORT, _TIFF_LONG = 3, 4
 # JPEG start-of-frame markers: C0-CF except DHT (C4), JPG (C8) and DAC (CC).
 _JPEG_SOF = {0xC0 + i for i in range(16)} - {0xC4, 0xC8, 0xCC}
 _JPEG_STANDALONE = {0x01, *range(0xD0, 0xDA)}  # TEM, RSTn, SOI, EOI: no length field
+#: Markers read before the frame header at most. A real file has a handful (APPn, DQT, DHT,
+#: COM...); without a bound, megabytes of fill bytes or restart markers would cost seconds of
+#: Python per upload.
+_JPEG_MAX_MARKERS = 256
+_JPEG_FILL = re.compile(rb"\xff+")
+#: Scans a JPEG may hold: libjpeg's progressive scripts write 6 (gray) to 10 (colour), plus
+#: those of an embedded thumbnail. 0xFF 0xDA appears nowhere else (0xFF is stuffed in scans).
+_JPEG_MAX_SCANS = 100
+_JPEG_SOS = b"\xff\xda"
+_PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # by colour type
+_INFLATE_STEP = 2**20  # bytes inflated at a time while the PNG data is measured
 
 
 class HeaderError(ValueError):
@@ -64,6 +83,58 @@ def read_header(data: bytes) -> ImageHeader:
     return ImageHeader(kind, width, height)
 
 
+def check_decoding_work(data: bytes, header: ImageHeader) -> None:
+    """Raise HeaderError when decoding ``data`` would take far more work than ``header``'s
+    size needs (see the module doc); cheap next to the decoding itself."""
+    try:
+        if header.format == "png":
+            _check_png_data(data, header)
+    except (struct.error, IndexError) as exc:
+        raise HeaderError("truncated PNG header") from exc
+    if header.format == "jpeg" and data.count(_JPEG_SOS) > _JPEG_MAX_SCANS:
+        raise HeaderError(f"JPEG holds more than {_JPEG_MAX_SCANS} scans")
+
+
+def _png_data_limit(data: bytes, header: ImageHeader) -> int:
+    """Bytes the image data of a PNG inflates to at most: a filter byte and the packed pixels
+    per row; Adam7 interlacing's passes add rows (below 3x plus 1 kB for any size)."""
+    depth, colour, interlaced = data[24], data[25], data[28]
+    if colour not in _PNG_CHANNELS or depth not in (1, 2, 4, 8, 16):
+        raise HeaderError(f"PNG header declares bit depth {depth} with colour type {colour}")
+    raw = header.height * (1 + -(-header.width * _PNG_CHANNELS[colour] * depth // 8))
+    return (3 if interlaced else 1) * raw + 1024
+
+
+def _check_png_data(data: bytes, header: ImageHeader) -> None:
+    limit = _png_data_limit(data, header)
+    max_chunks = 4096 + limit // 1024  # encoders write IDAT chunks of 8 kB or more
+    view = memoryview(data)
+    inflater = zlib.decompressobj()
+    inflated, at = 0, len(PNG_SIGNATURE)
+    for _ in range(max_chunks):
+        if at + 8 > len(data):
+            return
+        (length,) = struct.unpack_from(">I", data, at)
+        kind = data[at + 4 : at + 8]
+        if kind == b"IEND":
+            return
+        if kind == b"IDAT":
+            pending = view[at + 8 : at + 8 + length]
+            try:
+                while pending and inflated <= limit:
+                    inflated += len(inflater.decompress(pending, _INFLATE_STEP))
+                    pending = inflater.unconsumed_tail
+            except zlib.error as exc:
+                raise HeaderError(f"PNG image data is corrupt ({exc})") from exc
+            if inflated > limit:
+                raise HeaderError(
+                    f"PNG image data inflates beyond the {limit} bytes its declared "
+                    f"{header.width} x {header.height} pixels need (a decompression bomb?)"
+                )
+        at += 12 + length
+    raise HeaderError(f"PNG has more than {max_chunks} chunks")
+
+
 def _png(data: bytes) -> tuple[int, int]:
     if data[12:16] != b"IHDR":
         raise HeaderError("PNG file does not start with an IHDR chunk")
@@ -91,11 +162,10 @@ def _tiff(data: bytes) -> tuple[int, int]:
 
 def _jpeg(data: bytes) -> tuple[int, int]:
     i = 2
-    while True:
+    for _ in range(_JPEG_MAX_MARKERS):
         if data[i] != 0xFF:
             raise HeaderError("JPEG marker expected")
-        while data[i] == 0xFF:  # fill bytes
-            i += 1
+        i = _JPEG_FILL.match(data, i).end()  # fill bytes, skipped without a Python loop
         marker = data[i]
         i += 1
         if marker in _JPEG_STANDALONE:
@@ -107,6 +177,7 @@ def _jpeg(data: bytes) -> tuple[int, int]:
         if marker == 0xDA:  # start of scan before any frame header
             raise HeaderError("JPEG has no frame header")
         i += length
+    raise HeaderError(f"JPEG has no frame header within its first {_JPEG_MAX_MARKERS} markers")
 
 
 def _bmp(data: bytes) -> tuple[int, int]:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sdcnet.camera import Intrinsics
-from sdcnet.export.runtime import OnnxModel
+from sdcnet.export.runtime import ModelLoadError, OnnxModel
 from sdcnet.pipeline import Completion, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
 from sdcnet.service.decode import check_same_size, decode_gray, decode_sparse
@@ -24,6 +24,7 @@ from sdcnet.service.encode import encode
 from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, ResponseFormat, Timings
 
 PHASES = ("decode", "queue", "inference", "encode")
+SELF_TEST_SIZE = 64  # pixels, side of the frame the model completes once at start-up
 
 
 class PhaseTimer:
@@ -64,6 +65,27 @@ class Engine:
                 return complete(self.model.run, gray, sparse, self.model.stride)
         finally:
             self._lock.release()
+
+
+def self_test(model: OnnxModel) -> None:
+    """Complete one small synthetic frame (``SELF_TEST_SIZE`` px, one LIDAR return at 100 m)
+    through the service's own pipeline; raises ``ModelLoadError`` when that fails.
+
+    Catches a file that loads but cannot serve (the right names and metadata on a graph of
+    the wrong shapes or operators) before the service says it is ready, and warms it up.
+    """
+    gray = np.zeros((SELF_TEST_SIZE, SELF_TEST_SIZE), np.uint8)
+    sparse = np.zeros_like(gray, dtype=np.float32)
+    sparse[SELF_TEST_SIZE // 2, SELF_TEST_SIZE // 2] = 100.0
+    try:
+        result = complete(model.run, gray, sparse, model.stride)
+    except Exception as exc:  # onnxruntime and numpy raise many types; all mean "cannot serve"
+        raise ModelLoadError(
+            f"{model.path} loads but cannot complete a {SELF_TEST_SIZE} x {SELF_TEST_SIZE} "
+            f"test frame, so it would fail every request: {type(exc).__name__}: {exc}"
+        ) from exc
+    if result.depth.dtype != np.float32:
+        raise ModelLoadError(f"{model.path} answers {result.depth.dtype} depth, not float32")
 
 
 @dataclass(frozen=True)

@@ -64,6 +64,12 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(
         default=256 * 2**20, ge=1, description="largest request body (bytes) accepted"
     )
+    body_timeout_s: float = Field(
+        default=10.0,
+        gt=0,
+        description="seconds a request body may stall between two chunks before 408 (a "
+        "stalled upload would otherwise hold one of the max_in_flight places for ever)",
+    )
     log_level: Literal["critical", "error", "warning", "info", "debug"] = Field(
         default="info", description="critical, error, warning, info or debug"
     )

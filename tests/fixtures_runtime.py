@@ -1,20 +1,26 @@
 """Real parts for the service and client tests: an exported model, generated frames, and the
-real service (``python -m sdcnet.service``, i.e. ``sdc-serve``) in a subprocess on 127.0.0.1.
+real service (``python -m sdcnet.service``, i.e. ``sdc-serve``) in a subprocess on 127.0.0.1,
+with its memory and open files read from /proc.
 
 Plain helpers rather than fixtures, so that each test module builds its own module-scoped
-fixtures (one service process per module) on top of them.
+fixtures (one service process per module) on top of them. The benchmarks that start the
+service (``benchmarks.service_latency``, ``benchmarks.load``, ``benchmarks.fuzz``) use them too.
 """
 
 from __future__ import annotations
 
 import functools
 import io
+import json
+import os
 import re
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -52,8 +58,29 @@ def sample(size: int = 256) -> Sample:
     return make_sample(config, build_model(config, 0), 0, 0, "test")
 
 
-def png_bytes(image: np.ndarray, ext: str = ".png") -> bytes:
-    ok, data = cv2.imencode(ext, image)
+@functools.cache
+def samples(size: int = 1024, count: int = 4, seed: int = 5) -> tuple[Sample, ...]:
+    """``count`` generated frames at ``size`` x ``size``, one per procedural spacecraft of
+    ``seed``: different shapes, attitudes and distances (50-250 m), the same for a seed."""
+    config = GenerateConfig(models=count, views=1, seed=seed, split=(count, 0, 0), size=size)
+    return tuple(make_sample(config, build_model(config, m), m, 0, "test") for m in range(count))
+
+
+def sample_files(s: Sample) -> dict[str, tuple[str, bytes]]:
+    """The multipart files of one frame as a client sends them: gray PNG, sparse ``.npy``."""
+    return {"gray": ("gray.png", png_bytes(s.gray)), "sparse": ("sparse.npy", npy_bytes(s.sparse))}
+
+
+def multipart_body(files: dict, data: dict | None = None) -> tuple[bytes, str]:
+    """(body bytes, Content-Type) of a multipart form, encoded once by httpx: load generators
+    send the same bytes many times without re-encoding them."""
+    request = httpx.Request("POST", "http://127.0.0.1/", files=files, data=data)
+    return request.read(), request.headers["content-type"]
+
+
+def png_bytes(image: np.ndarray, ext: str = ".png", params: list[int] | None = None) -> bytes:
+    """``image`` encoded by OpenCV as ``ext`` (PNG by default) with its encoder ``params``."""
+    ok, data = cv2.imencode(ext, image, params or [])
     assert ok
     return data.tobytes()
 
@@ -64,17 +91,25 @@ def npy_bytes(array: np.ndarray, allow_pickle: bool = False) -> bytes:
     return buffer.getvalue()
 
 
+@dataclass(frozen=True)
+class Service:
+    """A running ``sdc-serve``: its base URL and the process id /proc knows it by."""
+
+    url: str
+    pid: int
+
+
 @contextmanager
-def running_service(model: Path, log: Path, *flags: str) -> Iterator[str]:
-    """Start ``sdc-serve`` on a free port of 127.0.0.1 with ``flags``; yield its URL once
-    ``/ready`` answers 200; stop it afterwards."""
+def service_process(model: Path, log: Path, *flags: str) -> Iterator[Service]:
+    """Start ``sdc-serve`` on a free port of 127.0.0.1 with ``flags`` (after ``--threads 1``,
+    which a ``--threads`` flag overrides); yield it once ``/ready`` answers 200; stop it
+    afterwards."""
     command = [sys.executable, "-m", "sdcnet.service", "--model", str(model)]
     command += ["--host", "127.0.0.1", "--port", "0", "--threads", "1", *flags]
     with log.open("w") as out:
         process = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
     try:
-        url = _wait_ready(process, log)
-        yield url
+        yield Service(_wait_ready(process, log), process.pid)
     finally:
         process.terminate()
         try:
@@ -82,6 +117,55 @@ def running_service(model: Path, log: Path, *flags: str) -> Iterator[str]:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+
+
+@contextmanager
+def running_service(model: Path, log: Path, *flags: str) -> Iterator[str]:
+    """``service_process``, yielding only the URL."""
+    with service_process(model, log, *flags) as service:
+        yield service.url
+
+
+#: The model the service ships with, when it has been trained and exported.
+SHIPPED_MODEL = Path(__file__).resolve().parent.parent / "models" / "sdcnet.onnx"
+
+
+def benchmark_model(path: Path | None, workdir: Path) -> tuple[Path, str]:
+    """The model a benchmark serves, and how to name it in its report: ``path`` when given,
+    else the shipped ``models/sdcnet.onnx`` when it exists, else the real architecture with
+    random weights (``random_model``), exported into ``workdir``."""
+    if path is not None:
+        return path, f"`{path}`"
+    if SHIPPED_MODEL.exists():
+        return SHIPPED_MODEL, "the shipped `models/sdcnet.onnx`"
+    return random_model(workdir), (
+        "SDCNet with random weights (`models/sdcnet.onnx` does not exist yet; the "
+        "segmentation bias is raised so that the whole crop is foreground)"
+    )
+
+
+@contextmanager
+def temporary_service(model: Path | None, *flags: str) -> Iterator[tuple[Service, str]]:
+    """``service_process`` on ``benchmark_model(model)``, its log in a temporary folder; yields
+    the service and the model's description."""
+    with tempfile.TemporaryDirectory() as work:
+        path, description = benchmark_model(model, Path(work))
+        with service_process(path, Path(work) / "serve.log", *flags) as service:
+            yield service, description
+
+
+def memory_kib(pid: int) -> dict[str, int]:
+    """Resident memory of a process from /proc/PID/status, KiB: ``rss`` (VmRSS, now) and
+    ``peak`` (VmHWM, the most it ever held)."""
+    fields = dict(
+        line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+    )
+    return {"rss": int(fields["VmRSS"].split()[0]), "peak": int(fields["VmHWM"].split()[0])}
+
+
+def open_fds(pid: int) -> int:
+    """File descriptors the process holds open (entries of /proc/PID/fd)."""
+    return len(os.listdir(f"/proc/{pid}/fd"))
 
 
 def _wait_ready(process: subprocess.Popen, log: Path, timeout_s: float = 90.0) -> str:
@@ -100,3 +184,123 @@ def _wait_ready(process: subprocess.Popen, log: Path, timeout_s: float = 90.0) -
                 pass
         time.sleep(0.1)
     raise RuntimeError(f"the service was not ready within {timeout_s} s:\n{log.read_text()}")
+
+
+# -- fuzzing the API from its OpenAPI schema (tests/test_fuzz.py, benchmarks/fuzz.py) ------
+
+COMPLETE = "POST /complete"
+
+
+@dataclass
+class FuzzReport:
+    """What a schemathesis run did: statuses per operation, failures (check, message, curl)."""
+
+    statuses: dict[str, dict[int | None, int]]
+    failures: list[str]
+    seconds: float
+
+    @property
+    def requests(self) -> int:
+        return sum(sum(counts.values()) for counts in self.statuses.values())
+
+    def summary(self) -> str:
+        """A markdown table of statuses per operation, then the failures."""
+        codes = sorted({c for counts in self.statuses.values() for c in counts}, key=str)
+        lines = [
+            "| operation | requests | " + " | ".join(str(c) for c in codes) + " |",
+            "|---|---|" + "---|" * len(codes),
+        ]
+        for operation, counts in sorted(self.statuses.items()):
+            cells = " | ".join(str(counts.get(c, 0)) for c in codes)
+            lines.append(f"| {operation} | {sum(counts.values())} | {cells} |")
+        lines.append(
+            f"\n{self.requests} requests in {self.seconds:.1f} s, {len(self.failures)} failures"
+        )
+        return "\n".join(lines + self.failures)
+
+
+def fuzz_frame(depth_scale: float | None) -> dict[str, bytes]:
+    """A valid 64 x 64 frame for POST /complete: a gray gradient and 256 returns at 100-115 m,
+    as a ``.npy`` or, when ``depth_scale`` (metres per unit) is given, a 16-bit PNG."""
+    gray = np.add.outer(np.arange(64), np.arange(64)).astype(np.uint8)
+    sparse = np.zeros((64, 64), np.float32)
+    sparse[::4, ::4] = 100 + np.arange(256, dtype=np.float32).reshape(16, 16) / 16
+    if depth_scale is None:
+        return {"gray": png_bytes(gray), "sparse": npy_bytes(sparse)}
+    units = np.clip(np.round(sparse / depth_scale), 0, 65535).astype(np.uint16)
+    units[::4, ::4] = np.maximum(units[::4, ::4], 1)  # a return stays a return at any scale
+    return {"gray": png_bytes(gray), "sparse": png_bytes(units)}
+
+
+def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
+    """schemathesis ``before_call`` hook: a positive (schema-valid) ``POST /complete`` case is
+    sent with a real frame in place of its generated ``gray`` and ``sparse`` bytes.
+
+    The schema can say that both are files, not that they are a decodable image and a depth
+    map of the same size; without this, every "valid" case would be refused (rightly) and the
+    positive_data_acceptance check would test nothing. Every other field keeps its generated
+    value (intrinsics, depth_scale, outlier_removal, format). The frame goes in the transport's
+    ``files`` and ``data``, so the case itself (and its positive label) is left as generated.
+    Negative cases are sent as generated.
+    """
+    meta = case.meta
+    positive = meta is not None and meta.generation.mode.value == "positive"
+    if f"{case.method.upper()} {case.path}" != COMPLETE or not positive:
+        return
+    if not isinstance(case.body, dict):
+        return
+    fields = {k: v for k, v in case.body.items() if k not in ("gray", "sparse")}
+    frame = fuzz_frame(fields.get("depth_scale"))
+    kwargs["files"] = {name: (f"{name}.bin", data) for name, data in frame.items()}
+    kwargs["data"] = {k: v if isinstance(v, str) else json.dumps(v) for k, v in fields.items()}
+
+
+def fuzz_api(url: str, max_examples: int, seed: int = 0) -> FuzzReport:
+    """Run schemathesis (examples, coverage and fuzzing phases, every check) on every
+    operation of the service at ``url``, from its /openapi.json; ``max_examples`` per
+    operation and phase. Leaves nothing in the working directory."""
+    import hypothesis.configuration
+    import schemathesis
+    from schemathesis.engine import events, from_schema
+    from schemathesis.hooks import GLOBAL_HOOK_DISPATCHER
+
+    config = schemathesis.Config.from_dict(
+        {
+            "seed": seed,
+            "cache": {"enabled": False},
+            "workers": 1,
+            "continue-on-failure": True,
+            "generation": {"max-examples": max_examples, "database": "none"},
+        }
+    )
+    statuses: dict[str, dict[int | None, int]] = {}
+    failures: list[str] = []
+    start = time.monotonic()
+    hook = schemathesis.hook("before_call")(real_files_for_valid_cases)
+    try:
+        with tempfile.TemporaryDirectory() as home:
+            hypothesis.configuration.set_hypothesis_home_dir(home)
+            schema = schemathesis.openapi.from_url(f"{url}/openapi.json", config=config)
+            for event in from_schema(schema).execute():
+                if isinstance(event, events.ScenarioFinished):
+                    _record(event.recorder, statuses, failures)
+                elif isinstance(event, events.NonFatalError | events.FatalError):
+                    failures.append(f"- error: {event}")
+    finally:
+        GLOBAL_HOOK_DISPATCHER.unregister(hook)
+    return FuzzReport(statuses, failures, time.monotonic() - start)
+
+
+def _record(recorder, statuses: dict, failures: list[str]) -> None:
+    counts = statuses.setdefault(recorder.label, {})
+    for interaction in recorder.interactions.values():
+        status = interaction.response.status_code if interaction.response else None
+        counts[status] = counts.get(status, 0) + 1
+    for checks in recorder.checks.values():
+        for check in checks:
+            if check.failure_info is not None:
+                failure = check.failure_info.failure
+                failures.append(
+                    f"- {recorder.label}: {check.name}: {failure.title}: {failure.message}\n"
+                    f"  {check.failure_info.code_sample}"
+                )

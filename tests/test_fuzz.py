@@ -1,0 +1,29 @@
+"""The HTTP API fuzzed from its own OpenAPI schema (schemathesis), bounded: the real service in
+a subprocess, every operation through schemathesis's coverage and fuzzing phases with all its
+checks (no 5xx, responses as the schema says, invalid requests refused, valid ones accepted).
+``python -m benchmarks.fuzz --max-examples N`` runs the same for longer."""
+
+from __future__ import annotations
+
+import pytest
+from fixtures_runtime import COMPLETE, fuzz_api, random_model, running_service
+
+MAX_EXAMPLES = 40  # per operation and phase: about 150 requests, a few seconds
+
+
+@pytest.fixture(scope="module")
+def url(tmp_path_factory):
+    log = tmp_path_factory.mktemp("fuzz") / "serve.log"
+    model = random_model(tmp_path_factory.getbasetemp())
+    with running_service(model, log, "--max-pixels=1048576", "--body-timeout=5") as address:
+        yield address
+
+
+def test_the_api_passes_every_schemathesis_check(url):
+    report = fuzz_api(url, MAX_EXAMPLES, seed=0)
+    assert not report.failures, report.summary()
+    complete = report.statuses[COMPLETE]
+    assert complete.get(200, 0) >= 10, report.summary()  # valid frames were completed
+    assert sum(n for status, n in complete.items() if 400 <= status < 500) >= 30
+    assert all(status is not None and status < 500 for status in complete), report.summary()
+    assert len(report.statuses) == 9  # every operation of the schema

@@ -1,0 +1,466 @@
+"""A catalogue of crafted, hostile requests sent to the real service over real HTTP: image
+bombs and huge declared sizes, pickles and object arrays, truncated and stalled uploads,
+wrong content types, malformed multipart, extra and repeated fields.
+
+Each must get a 4xx (the status and error code it should), fast, without the server's memory
+growing: a bound on each request's wall time catches hangs, and the server's peak resident
+memory (VmHWM in /proc) is compared with what it held after a first real frame.
+test_service.py covers the plainer bad inputs (empty, truncated or corrupt files, wrong dtype
+or shape, bad depths, a simple pickle, a too-large real image): none is repeated here.
+"""
+
+from __future__ import annotations
+
+import gzip
+import re
+import socket
+import struct
+import time
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from fixtures_runtime import (
+    memory_kib,
+    multipart_body,
+    npy_bytes,
+    png_bytes,
+    random_model,
+    sample,
+    sample_files,
+    service_process,
+)
+
+MAX_PIXELS = 1024 * 1024
+MAX_UPLOAD_BYTES = 8 * 2**20
+BODY_TIMEOUT_S = 1.0
+WALL_LIMIT_S = 5.0  # per request: generous, only to catch hangs
+PEAK_GROWTH_LIMIT_MIB = 160  # the 20000 x 20000 bomb alone would take 381 MiB decoded
+MARKER = "hostile-marker"  # a file that only code run by unpickling would create
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    """The service with small limits, after one real frame (so its memory is warmed up)."""
+    log = tmp_path_factory.mktemp("hostile") / "serve.log"
+    flags = [f"--max-pixels={MAX_PIXELS}", f"--max-upload-bytes={MAX_UPLOAD_BYTES}"]
+    flags += [f"--body-timeout={BODY_TIMEOUT_S}", "--max-in-flight=2"]
+    model = random_model(tmp_path_factory.getbasetemp())
+    with service_process(model, log, *flags) as running:
+        response = httpx.post(f"{running.url}/complete", files=good_files(), timeout=60)
+        assert response.status_code == 200, response.text
+        yield running
+
+
+@pytest.fixture(scope="module")
+def baseline_kib(service) -> int:
+    return memory_kib(service.pid)["rss"]
+
+
+# -- what the cases are made of ----------------------------------------------------------
+
+
+def good_files() -> dict[str, tuple[str, bytes]]:
+    return sample_files(sample(256))
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def png(width: int, height: int, depth: int, colour: int, inflated: int | None = None) -> bytes:
+    """A PNG with a valid IHDR and one IDAT of ``inflated`` zero bytes (default: exactly the
+    rows its size needs, all black), deflated in 1 MiB steps so none is ever held whole."""
+    header = struct.pack(">IIBBBBB", width, height, depth, colour, 0, 0, 0)
+    if inflated is None:
+        channels = {0: 1, 2: 3, 4: 2, 6: 4}[colour]
+        inflated = height * (1 + -(-width * channels * depth // 8))
+    stream, block = zlib.compressobj(9), bytes(2**20)
+    idat = [stream.compress(block) for _ in range(inflated // len(block))]
+    idat += [stream.compress(bytes(inflated % len(block))), stream.flush()]
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + _chunk(b"IHDR", header)
+        + _chunk(b"IDAT", b"".join(idat))
+        + _chunk(b"IEND", b"")
+    )
+
+
+def jpeg_with_scans(count: int) -> bytes:
+    """The test frame as a progressive JPEG, one of its scans repeated up to ``count`` scans:
+    libjpeg decodes it (with a warning), each scan going over the whole frame again."""
+    data = png_bytes(sample(256).gray, ".jpg", [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    starts = [m.start() for m in re.finditer(b"\xff\xda", data)]
+    scan = data[starts[-2] : starts[-1]]
+    return data[: starts[-1]] + scan * (count - len(starts)) + data[starts[-1] :]
+
+
+def bmp_header(width: int, height: int) -> bytes:
+    info = struct.pack("<IiiHHIIiiII", 40, width, height, 1, 8, 0, 0, 0, 0, 0, 0)
+    return b"BM" + struct.pack("<IHHI", 14 + len(info), 0, 0, 14 + len(info)) + info
+
+
+def tiff_header(width: int, length: int, ifd_offset: int = 8) -> bytes:
+    entries = [(256, 4, 1, width), (257, 4, 1, length), (258, 3, 1, 8), (262, 3, 1, 1)]
+    ifd = struct.pack("<H", len(entries))
+    ifd += b"".join(struct.pack("<HHII", *entry) for entry in entries) + bytes(4)
+    return b"II*\x00" + struct.pack("<I", ifd_offset) + ifd
+
+
+def jpeg_header(width: int, height: int) -> bytes:
+    sof = b"\xff\xc0" + struct.pack(">HBHHB", 11, 8, height, width, 1) + b"\x01\x11\x00"
+    return b"\xff\xd8" + sof + b"\xff\xd9"
+
+
+def npy_with_header(header: str, data: bytes = b"", major: int = 1) -> bytes:
+    """A .npy file with a literal header dict (padded as numpy pads it) and raw data."""
+    text = header.encode("latin-1")
+    length = len(text) + 1
+    text += b" " * (-(10 + length) % 64) + b"\n"
+    size = struct.pack("<H", len(text)) if major == 1 else struct.pack("<I", len(text))
+    return b"\x93NUMPY" + bytes([major, 0]) + size + text + data
+
+
+class Unpickled:
+    """Unpickling this object creates the file ``MARKER`` in the working directory."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def __reduce__(self):
+        return (open, (str(self.path), "w"))
+
+
+def pickled_payload(tmp: Path) -> bytes:
+    return npy_bytes(np.array([Unpickled(tmp / MARKER)], dtype=object), allow_pickle=True)
+
+
+def multipart(*parts: tuple[bytes, bytes], boundary: bytes = b"hostile", end: bool = True) -> bytes:
+    """A multipart body from (part headers, part data) pairs, by hand, so it can be wrong."""
+    body = b"".join(b"--" + boundary + b"\r\n" + h + b"\r\n\r\n" + d + b"\r\n" for h, d in parts)
+    return body + (b"--" + boundary + b"--\r\n" if end else b"")
+
+
+def file_part(name: str, data: bytes) -> tuple[bytes, bytes]:
+    header = f'Content-Disposition: form-data; name="{name}"; filename="{name}.bin"'
+    return header.encode(), data
+
+
+def field_part(name: str, value: bytes) -> tuple[bytes, bytes]:
+    return f'Content-Disposition: form-data; name="{name}"'.encode(), value
+
+
+def good_parts() -> list[tuple[bytes, bytes]]:
+    return [file_part(name, data) for name, (_, data) in good_files().items()]
+
+
+MULTIPART = "multipart/form-data; boundary=hostile"
+
+
+# -- how the cases are sent --------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Answer:
+    status: int | None  # None: the server closed the connection without an answer
+    body: bytes
+    seconds: float
+
+    def code(self) -> str | None:
+        try:
+            return httpx.Response(self.status or 0, content=self.body).json()["error"]["code"]
+        except (ValueError, KeyError, TypeError):
+            return None
+
+
+def send(url: str, body: bytes, content_type: str | None, **headers: str) -> Answer:
+    """POST /complete with exactly these bytes and headers."""
+    if content_type is not None:
+        headers["content-type"] = content_type
+    start = time.perf_counter()
+    response = httpx.post(f"{url}/complete", content=body, headers=headers, timeout=30)
+    return Answer(response.status_code, response.content, time.perf_counter() - start)
+
+
+def send_raw(url: str, request: bytes, half_close: bool = False) -> Answer:
+    """Write ``request`` on a socket (``half_close``: then shut the writing side, as a client
+    that gives up does) and read until the server closes; HTTP/1.1 with Connection: close."""
+    address = urlsplit(url)
+    start = time.perf_counter()
+    with socket.create_connection((address.hostname, address.port), timeout=30) as sock:
+        sock.sendall(request)
+        if half_close:
+            sock.shutdown(socket.SHUT_WR)
+        received = b""
+        while chunk := sock.recv(65536):
+            received += chunk
+    seconds = time.perf_counter() - start
+    if not received:
+        return Answer(None, b"", seconds)
+    head, _, body = received.partition(b"\r\n\r\n")
+    return Answer(int(head.split()[1]), body, seconds)
+
+
+def raw_request(body: bytes, content_length: int | str | None = None, *headers: str) -> bytes:
+    lines = ["POST /complete HTTP/1.1", "Host: 127.0.0.1", f"Content-Type: {MULTIPART}"]
+    lines += [f"Content-Length: {len(body) if content_length is None else content_length}"]
+    lines += ["Connection: close", *headers]
+    return ("\r\n".join(lines) + "\r\n\r\n").encode() + body
+
+
+# -- the catalogue -----------------------------------------------------------------------
+
+Case = Callable[[str, Path], Answer]
+
+
+def with_gray(make: Callable[[], bytes]) -> Case:
+    """The good frame with its gray file replaced by ``make()`` (made when the case runs)."""
+    return lambda url, tmp: send(url, *multipart_body({**good_files(), "gray": ("g", make())}))
+
+
+def with_sparse(make: Callable[[], bytes]) -> Case:
+    """The good frame with its sparse file replaced by ``make()``."""
+    return lambda url, tmp: send(url, *multipart_body({**good_files(), "sparse": ("s", make())}))
+
+
+Parts = Callable[[], list[tuple[bytes, bytes]]]
+
+
+def with_parts(extra: Parts = list, parts: Parts = good_parts, end: bool = True) -> Case:
+    """A hand-made multipart body: ``parts()`` (the good frame's two files), then ``extra()``."""
+    return lambda url, tmp: send(url, multipart(*parts(), *extra(), end=end), MULTIPART)
+
+
+def _pickle_case(url: str, tmp: Path) -> Answer:
+    return with_sparse(lambda: pickled_payload(tmp))(url, tmp)
+
+
+def _npy_header_code(url: str, tmp: Path) -> Answer:
+    code = f"__import__('pathlib').Path({str(tmp / MARKER)!r}).touch()"
+    header = f"{{'descr': {code}, 'fortran_order': False, 'shape': (256, 256), }}"
+    return with_sparse(lambda: npy_with_header(header, bytes(256 * 256 * 4)))(url, tmp)
+
+
+def _stalled_body(url: str, tmp: Path) -> Answer:
+    body = multipart(*good_parts())
+    return send_raw(url, raw_request(body[: len(body) // 2], len(body)))
+
+
+def _abandoned_body(url: str, tmp: Path) -> Answer:
+    body = multipart(*good_parts())
+    return send_raw(url, raw_request(body[: len(body) // 2], len(body)), half_close=True)
+
+
+def _cut_multipart(url: str, tmp: Path) -> Answer:
+    body = multipart(*good_parts())
+    return send(url, body[: len(body) - 5000], MULTIPART)
+
+
+def _gzip_bomb(url: str, tmp: Path) -> Answer:
+    bomb = gzip.compress(multipart(*good_parts()) + bytes(64 * 2**20), compresslevel=9)
+    return send(url, bomb, MULTIPART, **{"content-encoding": "gzip"})
+
+
+def gray_png() -> bytes:
+    return good_files()["gray"][1]
+
+
+#: case -> (how it is sent, expected status, expected error code; None: the server's own
+#: HTTP-level answer, not the service's JSON)
+CATALOGUE: dict[str, tuple[Case, int | None, str | None]] = {
+    # images: bombs and huge declared sizes, refused from the header before decoding
+    "png_bomb_20000x20000_1bit": (with_gray(lambda: png(20000, 20000, 1, 0)), 413, "too_large"),
+    "png_declares_100000x100000": (
+        with_gray(lambda: png(100000, 100000, 8, 0, inflated=0)),
+        413,
+        "too_large",
+    ),
+    "bmp_declares_50000x50000": (with_gray(lambda: bmp_header(50000, 50000)), 413, "too_large"),
+    "bmp_declares_most_negative_height": (
+        with_gray(lambda: bmp_header(4, -(2**31))),
+        413,
+        "too_large",
+    ),
+    "tiff_declares_100000x100000": (
+        with_gray(lambda: tiff_header(100000, 100000)),
+        413,
+        "too_large",
+    ),
+    "tiff_ifd_outside_the_file": (
+        with_gray(lambda: tiff_header(16, 16, 2**32 - 16)),
+        400,
+        "unreadable_file",
+    ),
+    "jpeg_declares_65535x65535": (with_gray(lambda: jpeg_header(65535, 65535)), 413, "too_large"),
+    "jpeg_declares_0x16": (with_gray(lambda: jpeg_header(0, 16)), 400, "unreadable_file"),
+    "jpeg_restart_marker_flood": (
+        with_gray(lambda: b"\xff\xd8" + b"\xff\xd0" * (3 * 2**20)),
+        400,
+        "unreadable_file",
+    ),
+    "jpeg_fill_byte_flood": (
+        with_gray(lambda: b"\xff\xd8" + b"\xff" * (7 * 2**20) + jpeg_header(16, 16)[3:]),
+        400,
+        "unreadable_file",
+    ),
+    # decodes (8 MiB, within the pixel limit, from a 30 kB file), then refused: sizes differ
+    "png_rgba16_at_the_pixel_limit": (
+        with_gray(lambda: png(1024, 1024, 16, 6)),
+        422,
+        "wrong_shape",
+    ),
+    # complete PNGs whose image data inflates to 256 MiB: libpng would inflate it all (1 s)
+    "png_16x16_inflating_to_256MiB": (
+        with_gray(lambda: png(16, 16, 8, 0, inflated=2**28)),
+        400,
+        "unreadable_file",
+    ),
+    "png_at_the_pixel_limit_inflating_to_256MiB": (
+        with_gray(lambda: png(1024, 1024, 8, 0, inflated=2**28)),
+        400,
+        "unreadable_file",
+    ),
+    # decodes in libjpeg (with a warning): each of the 3000 scans goes over the whole frame
+    "jpeg_of_3000_scans": (with_gray(lambda: jpeg_with_scans(3000)), 400, "unreadable_file"),
+    # .npy: never unpickled, header never evaluated
+    "npy_pickle_that_writes_a_file": (_pickle_case, 400, "pickle_not_allowed"),
+    "npy_object_array": (
+        with_sparse(lambda: npy_bytes(np.array([1.0, "a", None], dtype=object), allow_pickle=True)),
+        400,
+        "pickle_not_allowed",
+    ),
+    "npy_structured_with_object_field": (
+        with_sparse(
+            lambda: npy_bytes(np.zeros(4, dtype=[("a", "<f4"), ("b", "O")]), allow_pickle=True)
+        ),
+        400,
+        "pickle_not_allowed",
+    ),
+    "npy_header_with_code": (_npy_header_code, 400, "unreadable_file"),
+    "npy_header_length_4GiB": (
+        with_sparse(lambda: b"\x93NUMPY\x02\x00\xff\xff\xff\xff{'descr': '<f4'"),
+        400,
+        "unreadable_file",
+    ),
+    "npy_negative_shape": (
+        with_sparse(
+            lambda: npy_with_header(
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (-256, -256), }",
+                bytes(256 * 256 * 4),
+            )
+        ),
+        400,
+        "unreadable_file",
+    ),
+    # uploads cut short, stalled or abandoned
+    "body_shorter_than_content_length_then_stalled": (_stalled_body, 408, "request_timeout"),
+    # the multipart parser drops an unfinished last part (here sparse): never a cut file
+    "multipart_cut_short": (_cut_multipart, 422, "invalid_request"),
+    "multipart_without_closing_boundary": (with_parts(end=False), 422, "invalid_request"),
+    # wrong content types
+    "json_body": (
+        lambda url, tmp: send(url, b'{"gray": "AAAA", "sparse": "AAAA"}', "application/json"),
+        422,
+        "invalid_request",
+    ),
+    "raw_png_body": (lambda url, tmp: send(url, gray_png(), "image/png"), 422, "invalid_request"),
+    "urlencoded_form": (
+        lambda url, tmp: send(url, b"gray=abc&sparse=def", "application/x-www-form-urlencoded"),
+        422,
+        "invalid_request",
+    ),
+    "no_content_type": (lambda url, tmp: send(url, gray_png(), None), 422, "invalid_request"),
+    "multipart_without_boundary": (
+        lambda url, tmp: send(url, multipart(*good_parts()), "multipart/form-data"),
+        400,
+        "bad_request",
+    ),
+    "multipart_with_another_boundary": (
+        lambda url, tmp: send(url, multipart(*good_parts(), boundary=b"other"), MULTIPART),
+        400,
+        "bad_request",
+    ),
+    "gzip_bomb_body": (_gzip_bomb, 400, "bad_request"),
+    # fields: extra, repeated, misplaced, too many, too big
+    "extra_text_field": (
+        with_parts(lambda: [field_part("outlier_remova", b"true")]),
+        422,
+        "invalid_request",
+    ),
+    "extra_file_field": (
+        with_parts(lambda: [file_part("depth", good_files()["sparse"][1])]),
+        422,
+        "invalid_request",
+    ),
+    "duplicated_gray_file": (
+        with_parts(lambda: [file_part("gray", gray_png())]),
+        422,
+        "invalid_request",
+    ),
+    "duplicated_fx_field": (
+        with_parts(lambda: [field_part("fx", b"500"), field_part("fx", b"600")]),
+        422,
+        "invalid_request",
+    ),
+    "gray_as_a_text_field": (
+        with_parts(lambda: [field_part("gray", b"not a file")], parts=lambda: good_parts()[1:]),
+        422,
+        "invalid_request",
+    ),
+    "part_without_a_name": (
+        with_parts(lambda: [(b"Content-Disposition: form-data", b"x")]),
+        400,
+        "bad_request",
+    ),
+    "2000_fields": (
+        with_parts(lambda: [field_part(f"f{i}", b"") for i in range(2000)]),
+        400,
+        "bad_request",
+    ),
+    "text_field_above_1MiB": (
+        with_parts(lambda: [field_part("fx", b"1" * (2**20 + 10))]),
+        400,
+        "bad_request",
+    ),
+    # HTTP itself: uvicorn answers this before the service sees it
+    "content_length_not_a_number": (
+        lambda url, tmp: send_raw(url, raw_request(b"x", "twelve")),
+        400,
+        None,
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(CATALOGUE))
+def test_hostile_request_gets_its_4xx_fast(service, baseline_kib, tmp_path, case):
+    send_case, status, code = CATALOGUE[case]
+    answer = send_case(service.url, tmp_path)
+    assert answer.seconds < WALL_LIMIT_S, f"{case} took {answer.seconds:.1f} s"
+    assert (answer.status, answer.code()) == (status, code), answer.body[:300]
+    assert not (tmp_path / MARKER).exists(), "the service ran code from the upload"
+
+
+def test_a_client_that_gives_up_mid_body_is_dropped(service, baseline_kib):
+    """Half the body, then the client shuts its side: nothing to answer to; the service closes
+    the connection at once and keeps serving."""
+    answer = _abandoned_body(service.url, Path())
+    assert answer.seconds < WALL_LIMIT_S
+    assert answer.status is None or 400 <= answer.status < 500
+
+
+def test_still_serving_without_a_500_and_memory_bounded(service, baseline_kib):
+    """After the catalogue (run before this, in file order): a real frame still gets 200, no
+    request was counted as an internal error, and the server's peak memory stayed bounded."""
+    response = httpx.post(f"{service.url}/complete", files=good_files(), timeout=60)
+    assert response.status_code == 200, response.text
+    metrics = httpx.get(f"{service.url}/metrics").text
+    assert 'reason="internal_error"' not in metrics
+    memory = memory_kib(service.pid)
+    growth_mib = (memory["peak"] - baseline_kib) / 1024
+    assert growth_mib < PEAK_GROWTH_LIMIT_MIB, (memory, baseline_kib)
