@@ -63,7 +63,7 @@ model: $(STAMP)
 	$(VENV)/bin/sdc-train evaluate --checkpoint models/sdcnet.pt --data data/paper --split test \
 		--floor --out models/eval_test.json --title "Synthetic test split (18 unseen models)"
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out models/sdcnet.onnx \
-		--metrics models/eval_test.json --variants fp16 int8 --calibration-data data/paper
+		--metrics models/eval_test.json
 	$(VENV)/bin/sdc-train evaluate --onnx models/sdcnet.onnx --data data/paper --split test \
 		--out models/eval_test_onnx.json --title "Synthetic test split through onnxruntime (the service's numbers)"
 	$(VENV)/bin/sdc-train real --checkpoint models/sdcnet.pt --onnx models/sdcnet.onnx --floor \
@@ -71,3 +71,15 @@ model: $(STAMP)
 	$(VENV)/bin/sdc-train card --checkpoint models/sdcnet.pt --onnx models/sdcnet.onnx \
 		--report models/eval_test.json models/eval_test_onnx.json docs/real/real_spacecraft.json \
 		--notes models/NOTES.md --out models/MODEL_CARD.md
+
+## bench: regenerate the benchmark tables and plots in docs/benchmarks/ (needs data/paper;
+## FP16/INT8 variants are made in runs/variants, they are not shipped)
+.PHONY: bench
+bench: $(STAMP)
+	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out runs/variants/sdcnet.onnx \
+		--variants fp16 int8 --calibration-data data/paper
+	$(PY) -m benchmarks.model_latency --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx
+	$(PY) -m benchmarks.accuracy_speed --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx \
+		--data data/paper --split test --limit 192
+	$(PY) -m benchmarks.service_latency --requests 60
+	$(PY) -m benchmarks.load --requests 2000 --concurrency 32

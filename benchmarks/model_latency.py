@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
 Measured on {cpu_description()}, {args.threads} threads (torch.set_num_threads and onnxruntime
 intra_op_num_threads = {args.threads}, inter_op = 1), batch 1, whole frame (no cropping),
 {args.repeats} runs after 2 warm-up runs. Peak estimate: {peak:.0f} GFLOP/s ({peak_note}).
-Regenerate: `python benchmarks/model_latency.py --checkpoint {args.checkpoint} --onnx {args.onnx}`.
+Regenerate: `python -m benchmarks.model_latency --checkpoint {args.checkpoint} --onnx {args.onnx}`.
 
 | runtime | input | median ms | p95 ms | GFLOP/frame | GFLOP/s | of peak |
 |---|---|---|---|---|---|---|
