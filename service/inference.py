@@ -57,12 +57,15 @@ class Engine:
         self.model = model
         self._lock = threading.Lock()
 
-    def complete(self, gray: np.ndarray, sparse: np.ndarray, timer: PhaseTimer) -> Completion:
+    def complete(
+        self, gray: np.ndarray, sparse: np.ndarray, zoom: float, timer: PhaseTimer
+    ) -> Completion:
+        """Complete a frame, its crop resampled by ``zoom`` to the model's pixel scale."""
         with timer("queue"):
             self._lock.acquire()
         try:
             with timer("inference"):
-                return complete(self.model.run, gray, sparse, self.model.stride)
+                return complete(self.model.run, gray, sparse, self.model.stride, zoom=zoom)
         finally:
             self._lock.release()
 
@@ -124,6 +127,18 @@ def request_intrinsics(
     )
 
 
+#: Widest resampling to the model's pixel scale (model fx / image fx) the service applies.
+MAX_ZOOM = 4.0
+
+
+def pixel_scale(model_fx: float, fx: float, pixels: int, max_pixels: int) -> float:
+    """How much to resample the crop so its pixels match the model's (model fx / image fx),
+    kept within [1/MAX_ZOOM, MAX_ZOOM] and so that the resampled frame stays under
+    ``max_pixels``: odd intrinsics degrade the answer, never the service."""
+    zoom = model_fx / fx
+    return float(np.clip(zoom, 1 / MAX_ZOOM, min(MAX_ZOOM, (max_pixels / pixels) ** 0.5)))
+
+
 def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
     """Decode, complete, encode one request; raises ``ApiError`` for bad input."""
     timer = PhaseTimer()
@@ -131,10 +146,11 @@ def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
         gray = decode_gray(req.gray, max_pixels)
         sparse = decode_sparse(req.sparse, req.depth_scale, max_pixels)
         check_same_size(gray, sparse)
-    result = engine.complete(gray, sparse, timer)
     height, width = gray.shape
+    K = request_intrinsics(engine.model.info.intrinsics, width, height, req)
+    zoom = pixel_scale(engine.model.info.intrinsics.fx, K.fx, width * height, max_pixels)
+    result = engine.complete(gray, sparse, zoom, timer)
     with timer("encode"):
-        K = request_intrinsics(engine.model.info.intrinsics, width, height, req)
         valid = result.mask & (result.depth > 0)
         kept = statistical_outliers(result.depth, valid, K) if req.outlier_removal else valid
         points = back_project(result.depth, kept, K)

@@ -104,7 +104,8 @@ def test_a_generated_frame_round_trips_and_matches_onnxruntime(url, model_path):
     depth, mask, points = (decoded(body[k]) for k in ("depth", "mask", "points"))
 
     direct_model = OnnxModel(model_path, provider="cpu", threads=1)
-    direct = complete(direct_model.run, s.gray, s.sparse, direct_model.stride)
+    # a 256 px frame of the paper's camera: the service resamples it x4 to the model's scale
+    direct = complete(direct_model.run, s.gray, s.sparse, direct_model.stride, zoom=4.0)
     K = direct_model.info.intrinsics.scaled(256, 256)
     assert depth.dtype == np.float32 and mask.dtype == np.uint8 and points.dtype == np.float32
     np.testing.assert_array_equal(depth, direct.depth)
@@ -119,8 +120,14 @@ def test_a_generated_frame_round_trips_and_matches_onnxruntime(url, model_path):
     assert "inference;dur=" in response.headers["server-timing"]
 
 
+def test_odd_focal_lengths_are_served_at_the_nearest_supported_scale(url):
+    for fx in ("1e-9", "1.0", "1e9"):
+        response = post(url, frame_files(), {"fx": fx}, format="npz")
+        assert response.status_code == 200, response.text
+
+
 def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(url):
-    fields = {"fx": "500", "fy": "520", "cx": "100.5", "cy": "130", "outlier_removal": "true"}
+    fields = {"fx": "2000", "fy": "2020", "cx": "100.5", "cy": "130", "outlier_removal": "true"}
     as_json = post(url, frame_files(), fields).json()
     npz = post(url, frame_files(), fields, format="npz")
     ply = post(url, frame_files(), fields, format="ply")
@@ -135,10 +142,10 @@ def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(url):
         meta = json.loads(archive["meta.json"])
     np.testing.assert_array_equal(depth, decoded(as_json["depth"]))
     np.testing.assert_array_equal(points, decoded(as_json["points"]))
-    assert meta["intrinsics"] == {"fx": 500.0, "fy": 520.0, "cx": 100.5, "cy": 130.0}
+    assert meta["intrinsics"] == {"fx": 2000.0, "fy": 2020.0, "cx": 100.5, "cy": 130.0}
 
     # the points are the kept pixels, back-projected with the intrinsics given
-    K = Intrinsics(500.0, 520.0, 100.5, 130.0, 256, 256)
+    K = Intrinsics(2000.0, 2020.0, 100.5, 130.0, 256, 256)
     kept = statistical_outliers(depth, mask.astype(bool), K)
     np.testing.assert_array_equal(points, back_project(depth, kept, K))
     assert meta["outliers_removed"] == mask.sum() - len(points)
