@@ -94,7 +94,8 @@ PRESETS: dict[str, dict] = {
 }
 
 
-def _cpu_name() -> str:
+def cpu_name() -> str:
+    """The CPU model from /proc/cpuinfo (or the platform's description)."""
     cpuinfo = Path("/proc/cpuinfo")
     lines = cpuinfo.read_text().splitlines() if cpuinfo.exists() else []
     names = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
@@ -106,7 +107,7 @@ def hardware_description(device: torch.device, world: int) -> str:
     if device.type == "cuda":
         what = torch.cuda.get_device_name(device)
     else:
-        what = f"{_cpu_name()}, {torch.get_num_threads()} threads"
+        what = f"{cpu_name()}, {torch.get_num_threads()} threads"
     return f"{world} x {what}, torch {torch.__version__}"
 
 

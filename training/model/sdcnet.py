@@ -8,10 +8,10 @@ resolution ``factor`` (4) times below the input and FSNet at ``seg_factor`` (2) 
 (the sparse map is downsampled keeping the nearest return); depth is upsampled bilinearly,
 FSNet sees the full-resolution gray image as space-to-depth blocks and predicts the mask at
 full resolution by depth-to-space. The mask gets the finer grid because it decides most of
-the score: an ideal mask pooled to 1/4 and
-upsampled keeps IOU 92.5 % on our data, pooled to 1/2 it keeps 96.4 %. Depth is regressed
-relative to the mean LIDAR return of the image (d_ref) in units of ``depth_scale_m``, so the
-same weights serve 50 m and 250 m.
+the score: an ideal mask pooled to 1/4 and upsampled keeps IOU 94.7 %, pooled to 1/2 it
+keeps 97.8 % (mean over 198 training frames). Depth is regressed relative to the mean LIDAR
+return of the image (d_ref) in units of ``depth_scale_m``, so the same weights serve 50 m and
+250 m.
 Inputs are padded internally to the network's stride and the padding is cut off again.
 """
 
