@@ -18,6 +18,7 @@ import numpy as np
 
 ALPHA_M = 10.0
 NAMES = ("IOU", "IOI", "MAEI", "MATE", "RMSEI", "RMSTE")
+MASK_NAMES = ("IOU", "IOI")  # the metrics of the foreground mask alone
 
 
 def frame_metrics(
@@ -72,15 +73,20 @@ class MetricTable:
 def markdown_table(
     results: dict[str, dict[str, float]], counts: dict[str, int] | None = None
 ) -> str:
-    """Table-3-style markdown: one row per method, IOU/IOI in %, errors in metres."""
+    """Table-3-style markdown: one row per method, IOU/IOI in %, errors in metres; a metric
+    a method has no value for (NaN) shows as "n/a"."""
+
+    def cell(value: float, scale: float, digits: int) -> str:
+        return "n/a" if np.isnan(value) else f"{scale * value:.{digits}f}"
+
     lines = [
         "| method | IOU % | IOI % | MAEI m | MATE m | RMSEI m | RMSTE m |"
         + (" images |" if counts else ""),
         "|---|---|---|---|---|---|---|" + ("---|" if counts else ""),
     ]
     for name, m in results.items():
-        cells = [f"{100 * m['IOU']:.2f}", f"{100 * m['IOI']:.2f}"]
-        cells += [f"{m[k]:.3f}" for k in ("MAEI", "MATE", "RMSEI", "RMSTE")]
+        cells = [cell(m[k], 100, 2) for k in MASK_NAMES]
+        cells += [cell(m[k], 1, 3) for k in ("MAEI", "MATE", "RMSEI", "RMSTE")]
         if counts:
             cells.append(str(counts[name]))
         lines.append(f"| {name} | " + " | ".join(cells) + " |")

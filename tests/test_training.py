@@ -2,12 +2,14 @@
 
 import csv
 import json
+import math
 import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 from sdcnet.training.checkpoint import load_checkpoint
 from sdcnet.training.cli import main as train_main
@@ -113,6 +115,41 @@ def test_evaluate_prints_the_table_with_the_floor_and_writes_the_card(
         == 0
     )
     assert "| classical fill |" in card.read_text()
+
+
+def test_init_weights_fine_tunes_the_segmentation_alone(run, tiny_dataset, tmp_path):
+    """--init-weights X --epochs 0: stage 1 continues from X's FSNet; X's FDCNet is kept."""
+    out = tmp_path / "ft"
+    fit = ["fit", "--data", str(tiny_dataset), "--out", str(out), "--preset", "smoke"]
+    assert train_main([*fit, "--init-weights", str(run / "best.pt"), "--epochs", "0"]) == 0
+    assert not (out / "best.pt").exists()
+    source, _ = load_checkpoint(run / "best.pt")
+    tuned, state = load_checkpoint(out / "best_stage1.pt")
+    assert state["train_config"]["init_weights"] == str(run / "best.pt")
+    theirs, ours = source.state_dict(), tuned.state_dict()
+    assert all(torch.equal(theirs[k], ours[k]) for k in theirs if k.startswith("fdcnet."))
+    assert not all(torch.equal(theirs[k], ours[k]) for k in theirs if k.startswith("fsnet."))
+
+
+def test_init_weights_of_another_variant_is_refused(run, tiny_dataset, tmp_path, capsys):
+    fit = ["fit", "--data", str(tiny_dataset), "--out", str(tmp_path / "r"), "--preset", "smoke"]
+    assert train_main([*fit, "--variant", "baseline", "--init-weights", str(run / "best.pt")]) == 2
+    assert "another architecture" in capsys.readouterr().err
+
+
+def test_segmentation_only_evaluation_reports_the_mask_alone(run, tiny_dataset, tmp_path, capsys):
+    report = tmp_path / "seg.json"
+    args = ["evaluate", "--data", str(tiny_dataset), "--split", "test", "--out", str(report)]
+    best = str(run / "best.pt")
+    assert train_main([*args, "--checkpoint", best, best]) == 2
+    assert "--names" in capsys.readouterr().err
+    names = ["--names", "first", "second", "--segmentation-only"]
+    assert train_main([*args, "--checkpoint", best, best, *names]) == 0
+    table = capsys.readouterr().out
+    assert "| first |" in table and "| n/a |" in table
+    first, second = json.loads(report.read_text())["results"].values()
+    assert first == second and 0.0 < first["IOU"] <= 1.0
+    assert math.isnan(first["MAEI"]) and math.isnan(first["RMSTE"])
 
 
 def test_bad_arguments_give_clear_errors(tmp_path, capsys):

@@ -8,13 +8,18 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-from sdcnet.metrics import markdown_table
+from sdcnet.metrics import MASK_NAMES, markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.data.format import SampleStore
 from sdcnet.training.data.generate import GenerateConfig, generate
 from sdcnet.training.data.meshes import read_mesh_folder
-from sdcnet.training.evaluate import ClassicalFill, evaluate_records, torch_model_fn
+from sdcnet.training.evaluate import (
+    ClassicalFill,
+    evaluate_records,
+    torch_model_fn,
+    torch_segmentation_fn,
+)
 from sdcnet.training.model.sdcnet import VARIANTS
 from sdcnet.training.real import evaluate_per_model, gallery
 from sdcnet.training.train import PRESETS, TrainConfig, Trainer, config_from_preset
@@ -34,11 +39,18 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def _methods(args: argparse.Namespace) -> dict[str, tuple]:
     """Name -> (model callable, stride) for --checkpoint, --onnx and --floor."""
+    names = getattr(args, "names", None) or []
+    if names and len(names) != len(args.checkpoint):
+        raise ValueError(f"--names gives {len(names)} names for {len(args.checkpoint)} checkpoints")
+    segmentation_only = getattr(args, "segmentation_only", False)
     methods = {}
-    for path in args.checkpoint:
+    for i, path in enumerate(args.checkpoint):
         model, state = load_checkpoint(path)
-        name = state.get("train_config", {}).get("variant", Path(path).stem)
-        methods[name] = (torch_model_fn(model), model.config.stride)
+        name = names[i] if names else state.get("train_config", {}).get("variant", Path(path).stem)
+        if name in methods:
+            raise ValueError(f"two checkpoints are both called {name!r}: give --names")
+        fn = torch_segmentation_fn(model) if segmentation_only else torch_model_fn(model)
+        methods[name] = (fn, model.config.stride)
     if args.onnx:
         from sdcnet.export.runtime import OnnxModel
 
@@ -118,6 +130,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for name, (fn, stride) in methods.items():
         table = evaluate_records(fn, store, records, stride=stride, desc=name)
         results[name], counts[name], undefined[name] = table.mean(), len(table), table.undefined()
+        if args.segmentation_only:  # no depth was regressed: only the mask metrics mean anything
+            results[name] = {
+                k: v if k in MASK_NAMES else float("nan") for k, v in results[name].items()
+            }
     text = markdown_table(results, counts)
     print(f"{args.split} split of {args.data}: {len(records)} images, mean over images\n")
     print(text)
@@ -168,11 +184,23 @@ def parser() -> argparse.ArgumentParser:
         dest="init_segmentation",
         help="checkpoint whose trained FSNet to reuse: skips stage 1",
     )
+    f.add_argument(
+        "--init-weights",
+        dest="init_weights",
+        help="fine-tune: start from this checkpoint's weights (same variant), e.g. the shipped "
+        "model on your own spacecraft; --epochs 0 trains the segmentation alone",
+    )
     f.add_argument("--restart", action="store_true", help="ignore OUT/last.pt")
     f.set_defaults(func=cmd_fit)
 
     e = sub.add_parser("evaluate", help="Table-3-style metrics on a split")
     e.add_argument("--checkpoint", nargs="*", default=[], help="one or more checkpoints")
+    e.add_argument("--names", nargs="*", help="table labels of the checkpoints, in order")
+    e.add_argument(
+        "--segmentation-only",
+        action="store_true",
+        help="run only the foreground path of the checkpoints: IOU and IOI (stage-1-only runs)",
+    )
     e.add_argument("--onnx", help="also evaluate an exported ONNX model (onnxruntime)")
     e.add_argument("--data", required=True)
     e.add_argument("--split", default="test")

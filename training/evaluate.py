@@ -30,6 +30,19 @@ def torch_model_fn(model: torch.nn.Module, device: torch.device | str = "cpu") -
     return run
 
 
+def torch_segmentation_fn(model: SDCNet, device: torch.device | str = "cpu") -> ModelFn:
+    """Only the foreground path of ``model`` (depth left at 0): for segmentation-only
+    checkpoints (stage 1 alone, e.g. the FSNet input ablation) and at a fraction of the cost."""
+    model = model.eval().to(device)
+
+    @torch.no_grad()
+    def run(gray: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        prob = model.segment(torch.from_numpy(gray).to(device), torch.from_numpy(sparse).to(device))
+        return np.zeros_like(gray), prob.cpu().numpy()
+
+    return run
+
+
 class ClassicalFill(torch.nn.Module):
     """The floor: the network's own morphological pre-fill alone, mask = filled pixels.
 

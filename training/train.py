@@ -31,7 +31,7 @@ from sdcnet.training.data.format import SampleStore
 from sdcnet.training.dataset import TileDataset
 from sdcnet.training.evaluate import evaluate_records, torch_model_fn
 from sdcnet.training.losses import dense_depth_loss, foreground_depth_loss, segmentation_loss
-from sdcnet.training.model.sdcnet import VARIANTS, SDCNet
+from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet
 
 
 class Segmenter(torch.nn.Module):
@@ -65,6 +65,7 @@ class TrainConfig:
     workers: int = 2
     seed: int = 0
     init_segmentation: str | None = None  # reuse stage 1 of another run (its checkpoint)
+    init_weights: str | None = None  # fine-tune: start both stages from this checkpoint's weights
     command: str = field(default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]))
 
 
@@ -307,8 +308,23 @@ class Trainer:
         self.model.load_state_dict({**own, **seg})
         self.state["stage"] = 2
 
+    def _init_weights(self) -> None:
+        """Start from a whole trained model of the same variant (fine-tuning)."""
+        state = torch.load(self.config.init_weights, map_location=self.device, weights_only=True)
+        theirs = state.get("model_config")
+        if theirs is None or ModelConfig.from_dict(theirs) != self.model.config:
+            raise ValueError(
+                f"{self.config.init_weights} holds another architecture "
+                f"({theirs}); --init-weights needs the same variant"
+            )
+        self.model.load_state_dict(state["model"])
+
     def fit(self, resume: bool = True) -> Path:
+        """Run (or resume) both stages; the best checkpoint: best.pt, or best_stage1.pt when
+        stage 2 has no epochs (segmentation-only runs)."""
         optimizer_state, scheduler_state = self._resume() if resume else (None, None)
+        if optimizer_state is None and self.config.init_weights:
+            self._init_weights()
         if (
             optimizer_state is None
             and self.config.init_segmentation
@@ -363,4 +379,5 @@ class Trainer:
             (self.out / "train_config.json").write_text(
                 json.dumps(asdict(self.config), indent=1) + "\n"
             )
-        return self.out / "best.pt"
+        best = self.out / "best.pt"
+        return best if best.exists() else self.out / "best_stage1.pt"
