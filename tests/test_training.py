@@ -129,6 +129,16 @@ def test_init_weights_fine_tunes_the_segmentation_alone(run, tiny_dataset, tmp_p
     theirs, ours = source.state_dict(), tuned.state_dict()
     assert all(torch.equal(theirs[k], ours[k]) for k in theirs if k.startswith("fdcnet."))
     assert not all(torch.equal(theirs[k], ours[k]) for k in theirs if k.startswith("fsnet."))
+    _, source_state = load_checkpoint(run / "best.pt")
+    assert state["parent"]["train_config"] == source_state["train_config"]
+    assert state["parent"]["history"] == source_state["history"]
+    card = tmp_path / "card.md"
+    assert (
+        train_main(["card", "--checkpoint", str(out / "best_stage1.pt"), "--out", str(card)]) == 0
+    )
+    text = card.read_text()
+    assert "2 run(s)" in text and "| recipe | run 1 | run 2 |" in text
+    assert source_state["train_config"]["command"] in text
 
 
 def test_init_weights_of_another_variant_is_refused(run, tiny_dataset, tmp_path, capsys):

@@ -13,7 +13,28 @@ from sdcnet.metrics import markdown_table
 from sdcnet.training.model.sdcnet import SDCNet
 
 
-def _recipe(config: dict) -> str:
+def lineage(state: dict) -> list[dict]:
+    """The runs that made a checkpoint, oldest first: its ``parent`` chain (fine-tuning with
+    ``--init-weights``), then itself."""
+    runs = [state]
+    while "parent" in runs[0]:
+        runs.insert(0, runs[0]["parent"])
+    return runs
+
+
+def _run_line(run: dict) -> str:
+    """One training run: command, hardware, epochs per stage and wall time."""
+    history = run.get("history", [])
+    minutes = sum(r.get("seconds", 0) for r in history) / 60
+    epochs = [sum(1 for r in history if r["stage"] == s) for s in (1, 2)]
+    return (
+        f"`{run.get('train_config', {}).get('command', '?')}` on {run.get('hardware', '?')}: "
+        f"{epochs[0]} FSNet and {epochs[1]} FDCNet epochs up to the kept checkpoint, "
+        f"{minutes:.0f} min of training and validation"
+    )
+
+
+def _recipe(configs: list[dict]) -> str:
     keys = (
         "variant",
         "fsnet_inputs",
@@ -27,20 +48,18 @@ def _recipe(config: dict) -> str:
         "val_samples",
         "seed",
     )
-    return "\n".join(f"| {k} | {config.get(k)} |" for k in keys)
+    header = "| recipe | " + " | ".join(f"run {i + 1}" for i in range(len(configs))) + " |"
+    rule = "|---|" + "---|" * len(configs)
+    rows = [f"| {k} | " + " | ".join(str(c.get(k)) for c in configs) + " |" for k in keys]
+    return "\n".join([header, rule, *rows])
 
 
 def model_card(
     state: dict, model: SDCNet, reports: list[dict], version: str, notes: str = ""
 ) -> str:
     """Markdown model card of a trained checkpoint and its evaluation reports."""
-    config, data, history = (
-        state.get("train_config", {}),
-        state.get("dataset", {}),
-        state.get("history", []),
-    )
-    seconds = sum(r.get("seconds", 0) for r in history)
-    stage_epochs = {s: sum(1 for r in history if r["stage"] == s) for s in (1, 2)}
+    data, runs = state.get("dataset", {}), lineage(state)
+    minutes = sum(r.get("seconds", 0) for run in runs for r in run.get("history", [])) / 60
     params = sum(p.numel() for p in model.parameters())
     fs = sum(p.numel() for p in model.fsnet.parameters()) if model.fsnet is not None else 0
     lines = [
@@ -61,16 +80,13 @@ def model_card(
         f"- Data: `{data.get('command', '?')}` (seed {data.get('seed')}; "
         f"{data.get('models')} models x {data.get('views')} views; models per split "
         f"{data.get('split_models')}). Test models are never seen in training.",
-        f"- Command: `{config.get('command', '?')}`",
-        f"- Hardware: {state.get('hardware', '?')}; {seconds / 60:.0f} min of training and "
-        f"validation up to this checkpoint ({stage_epochs[1]} FSNet epochs, then the best of "
-        f"{config.get('epochs', '?')} FDCNet epochs: epoch {stage_epochs[2]}).",
+        f"- Training: {len(runs)} run(s), each starting from the weights the one before kept "
+        f"(`--init-weights`), {minutes:.0f} min in all:",
+        *(f"  {i + 1}. {_run_line(run)}." for i, run in enumerate(runs)),
         "- Optimiser: Adam, cosine decay per stage; stage 1 BCE on the foreground (eq. 6), stage 2",
         "  L1 on predicted ∩ true foreground (eq. 7) with FSNet frozen. Best epoch by val MATE.",
         "",
-        "| recipe | value |",
-        "|---|---|",
-        _recipe(config),
+        _recipe([run.get("train_config", {}) for run in runs]),
         "",
     ]
     for report in reports:

@@ -69,6 +69,8 @@ class TrainConfig:
     command: str = field(default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]))
 
 
+PROVENANCE = ("hardware", "train_config", "dataset", "history", "parent")
+
 PRESETS: dict[str, dict] = {
     # The paper's recipe (sec. V-A), for a GPU.
     "paper": {"fsnet_epochs": 30, "epochs": 50, "batch_size": 8, "tile": 512},
@@ -165,6 +167,7 @@ class Trainer:
         )
         self.state = {"stage": 1 if self.model.fsnet is not None else 2, "epoch": 0, "best": None}
         self.history: list[dict] = []
+        self._parent: dict | None = None  # provenance of the --init-weights checkpoint
 
     # --- bookkeeping ---------------------------------------------------------------------
 
@@ -173,7 +176,9 @@ class Trainer:
         return self.rank == 0
 
     def _provenance(self) -> dict:
-        return {
+        """What made this checkpoint; for a fine-tuned one also what made the model it started
+        from (``parent``, recursively), so the model card can tell the whole training."""
+        provenance = {
             "hardware": hardware_description(self.device, self.world),
             "train_config": asdict(self.config),
             "dataset": {
@@ -181,6 +186,12 @@ class Trainer:
                 for k in ("command", "seed", "models", "views", "size", "split_models")
             },
         }
+        if self.config.init_weights:
+            if self._parent is None:
+                state = self._read_init_weights()
+                self._parent = {k: state[k] for k in PROVENANCE if k in state}
+            provenance["parent"] = self._parent
+        return provenance
 
     def _save(self, name: str, optimizer, scheduler) -> None:
         if self.is_main:
@@ -308,8 +319,8 @@ class Trainer:
         self.model.load_state_dict({**own, **seg})
         self.state["stage"] = 2
 
-    def _init_weights(self) -> None:
-        """Start from a whole trained model of the same variant (fine-tuning)."""
+    def _read_init_weights(self) -> dict:
+        """The checkpoint fine-tuning starts from (same variant, else a clear error)."""
         state = torch.load(self.config.init_weights, map_location=self.device, weights_only=True)
         theirs = state.get("model_config")
         if theirs is None or ModelConfig.from_dict(theirs) != self.model.config:
@@ -317,7 +328,11 @@ class Trainer:
                 f"{self.config.init_weights} holds another architecture "
                 f"({theirs}); --init-weights needs the same variant"
             )
-        self.model.load_state_dict(state["model"])
+        return state
+
+    def _init_weights(self) -> None:
+        """Start from a whole trained model of the same variant (fine-tuning)."""
+        self.model.load_state_dict(self._read_init_weights()["model"])
 
     def fit(self, resume: bool = True) -> Path:
         """Run (or resume) both stages; the best checkpoint: best.pt, or best_stage1.pt when
