@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sdcnet.metrics import ALPHA_M, MetricTable, frame_metrics, markdown_table
+from sdcnet.metrics import ALPHA_M, MetricTable, frame_metrics, markdown_table, mask_error_bands
 
 
 def test_oracle_scores_perfectly():
@@ -36,3 +36,21 @@ def test_empty_sets_are_counted_not_averaged():
     assert table.mean()["MAEI"] == 0.0 and table.undefined()["MAEI"] == 1
     assert table.mean()["MATE"] == pytest.approx(ALPHA_M / 2)
     assert "| a | 50.00 |" in markdown_table({"a": table.mean()})
+
+
+def test_mask_error_bands_split_the_iou_deficit_by_distance_to_the_outline():
+    gt = np.zeros((20, 20), np.float32)
+    gt[5:15, 5:15] = 100.0  # a 10 x 10 square
+    pred = gt > 0
+    pred[5:15, 15] = True  # one column too wide: false foreground touching the outline
+    pred[9, 9] = False  # a hole 4 px inside: a far miss
+    bands = mask_error_bands(pred, gt)
+    union = 110
+    assert bands["fp_edge"] == pytest.approx(10 / union) and bands["fn_edge"] == 0
+    assert bands["miss_edge"] == pytest.approx(10 / union)
+    assert bands["miss_near"] == 0 and bands["miss_far"] == pytest.approx(1 / union)
+    iou = frame_metrics(np.where(pred, 100.0, 0.0), pred, gt)["IOU"]
+    assert bands["miss_edge"] + bands["miss_near"] + bands["miss_far"] == pytest.approx(1 - iou)
+    # off the edge only the hole is wrong: 8 x 8 interior minus 1, over the 64 off-edge pixels
+    assert bands["IOU_off_edge"] == pytest.approx(63 / 64)
+    assert np.isnan(mask_error_bands(np.zeros((4, 4), bool), np.zeros((4, 4)))["miss_edge"])
