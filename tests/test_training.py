@@ -166,6 +166,21 @@ def test_segmentation_only_evaluation_reports_the_mask_alone(run, tiny_dataset, 
     assert math.isnan(first["MAEI"]) and math.isnan(first["RMSTE"])
 
 
+def test_evaluate_appends_rows_made_on_the_same_frames(run, tiny_dataset, tmp_path, capsys):
+    report = tmp_path / "table.json"
+    args = ["evaluate", "--data", str(tiny_dataset), "--split", "test", "--out", str(report)]
+    best = ["--checkpoint", str(run / "best.pt"), "--segmentation-only"]
+    assert train_main([*args, *best, "--names", "(b) second"]) == 0
+    assert train_main([*args, "--floor", "--append"]) == 0
+    assert train_main([*args, *best, "--names", "(a) first", "--append"]) == 0
+    rows = json.loads(report.read_text())["results"]
+    assert list(rows) == ["(a) first", "(b) second", "classical fill"]
+    assert rows["(a) first"]["IOU"] == rows["(b) second"]["IOU"]
+    assert train_main([*args, "--floor", "--append", "--limit", "1"]) == 2
+    assert "other frames" in capsys.readouterr().err
+    assert list(json.loads(report.read_text())["results"]) == list(rows), "left untouched"
+
+
 def test_bad_arguments_give_clear_errors(tmp_path, capsys):
     assert train_main(["fit", "--data", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
     assert "not an sdcnet dataset" in capsys.readouterr().err

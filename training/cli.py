@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 from dataclasses import fields
@@ -141,19 +142,39 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if any(u.values()):
             print(f"{name}: images left out for empty sets: {u}")
     if args.out:
-        Path(args.out).write_text(
-            json.dumps(
-                {
-                    "title": args.title or f"{args.split} split of {args.data}",
-                    "split": args.split,
-                    "images": len(records),
-                    "results": results,
-                    "undefined": undefined,
-                },
-                indent=1,
-            )
-        )
+        report = {
+            "title": args.title or f"{args.split} split of {args.data}",
+            "split": args.split,
+            "images": len(records),
+            "frames_sha256": frames_digest(records),
+            "results": results,
+            "undefined": undefined,
+        }
+        if args.append:
+            report = appended(Path(args.out), report)
+        Path(args.out).write_text(json.dumps(report, indent=1))
     return 0
+
+
+def frames_digest(records: list[dict]) -> str:
+    """Names the exact frames a report was made on, so that rows are only ever merged with rows
+    of the same frames."""
+    return hashlib.sha256("\n".join(r["id"] for r in records).encode()).hexdigest()[:16]
+
+
+def appended(path: Path, report: dict) -> dict:
+    """``report``'s rows added to those of the report at ``path`` (same frames, else an error),
+    all rows sorted by name: label them "(a) ...", "(b) ..." to fix their order."""
+    if not path.exists():
+        return report
+    old = json.loads(path.read_text())
+    if old.get("frames_sha256") != report["frames_sha256"]:
+        raise ValueError(f"{path} was made on other frames: cannot append rows to it")
+    merged = {**report}
+    for key in ("results", "undefined"):
+        rows = {**old[key], **report[key]}
+        merged[key] = {name: rows[name] for name in sorted(rows)}
+    return merged
 
 
 def parser() -> argparse.ArgumentParser:
@@ -207,6 +228,11 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("--floor", action="store_true", help="also the classical morphological fill")
     e.add_argument("--limit", type=int, help="evaluate on this many images (evenly spread)")
     e.add_argument("--out", help="write the results as JSON")
+    e.add_argument(
+        "--append",
+        action="store_true",
+        help="add the rows to the --out report (made on the same frames); rows sorted by name",
+    )
     e.add_argument("--title", help="heading of these results in the model card")
     e.set_defaults(func=cmd_evaluate)
 
