@@ -108,7 +108,7 @@ frame's union |A ∪ Â| (the error columns add up to 1 - IOU). "At the outline"
 a pixel of the other class in the ground truth (<= 1.5 px). Regenerate:
 `{command}`
 
-{chr(10).join(sections)}
+{(chr(10) * 2).join(sections)}
 """
     print(write_markdown("mask_errors", "Where the mask errs", body))
     (DOCS / "mask_errors.json").write_text(json.dumps(results, indent=1))
