@@ -86,7 +86,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.service_latency --requests 60
 	$(PY) -m benchmarks.load --requests 2000 --concurrency 32
 
-## ablation: the paper's Tables 4 and 5 with the cpu recipe (about 1.5 h on 2 cores; needs
+## ablation: the paper's Tables 4 and 5 with the cpu recipe (each Table 5 run took ~21 min on 2 cores; needs
 ## $(RUN) from `make model`). Table 5: every fusion variant trains stage 2 on $(RUN)'s frozen
 ## 8-epoch FSNet (the baseline has none), evaluated beside $(RUN)'s own SDCNet. Table 4: FSNet
 ## on gray or sparse alone, stage 1 only, against $(RUN)'s stage 1 on both.

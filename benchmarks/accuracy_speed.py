@@ -27,7 +27,7 @@ from benchmarks.common import DOCS, cpu_description, onnx_variants, write_markdo
 from sdcnet.metrics import MetricTable, frame_metrics, markdown_table
 from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.data.format import SampleStore
+from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.evaluate import ClassicalFill, torch_model_fn
 
 
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     store = SampleStore(args.data)
     records = store.split(args.split)
     if args.limit:
-        records = records[:: max(1, len(records) // args.limit)][: args.limit]
+        records = evenly_spread(records, args.limit)
     model, _ = load_checkpoint(args.checkpoint)
     methods = {"PyTorch eager FP32": (torch_model_fn(model), model.config.stride)}
     for name, runner in onnx_variants(args.onnx, args.threads).items():

@@ -25,7 +25,7 @@ from benchmarks.common import DOCS, write_markdown
 from sdcnet.metrics import frame_metrics, mask_error_bands
 from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.data.format import SampleStore
+from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.evaluate import torch_segmentation_fn
 
 SIZE_BINS_PX = (0, 20_000, 60_000, 200_000, 1024 * 1024 + 1)  # true foreground pixels
@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     store = SampleStore(args.data)
     records = store.split(args.split)
     if args.limit:
-        records = records[:: max(1, len(records) // args.limit)][: args.limit]
+        records = evenly_spread(records, args.limit)
     results = {str(c): summary(frame_rows(c, store, records)) for c in args.checkpoint}
     command = (
         f"python -m benchmarks.mask_errors --checkpoint {' '.join(map(str, args.checkpoint))} "

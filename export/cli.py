@@ -21,7 +21,7 @@ from sdcnet.export.onnx_export import (
 )
 from sdcnet.export.variants import to_fp16, to_int8
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.data.format import SampleStore
+from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
 
 
@@ -120,8 +120,7 @@ def calibration_frames(data: Path | None, count: int = 32) -> list:
         return parity_frames(seed=4096, count=count)
     store = SampleStore(data)
     records = store.split("train")
-    picked = records[:: max(1, len(records) // count)][:count]
-    return [(s.gray, s.sparse) for s in map(store.load, picked)]
+    return [(s.gray, s.sparse) for s in map(store.load, evenly_spread(records, count))]
 
 
 if __name__ == "__main__":

@@ -9,15 +9,16 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-from sdcnet.metrics import MASK_NAMES, markdown_table
+from sdcnet.metrics import markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
-from sdcnet.training.data.format import SampleStore
+from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.data.generate import GenerateConfig, generate
 from sdcnet.training.data.meshes import read_mesh_folder
 from sdcnet.training.evaluate import (
     ClassicalFill,
     evaluate_records,
+    mask_metrics_only,
     torch_model_fn,
     torch_segmentation_fn,
 )
@@ -125,16 +126,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if not records:
         raise ValueError(f"split {args.split!r} is empty in {args.data}")
     if args.limit:
-        records = records[:: max(1, len(records) // args.limit)][: args.limit]
+        records = evenly_spread(records, args.limit)
     methods = _methods(args)
     results, counts, undefined = {}, {}, {}
     for name, (fn, stride) in methods.items():
         table = evaluate_records(fn, store, records, stride=stride, desc=name)
         results[name], counts[name], undefined[name] = table.mean(), len(table), table.undefined()
-        if args.segmentation_only:  # no depth was regressed: only the mask metrics mean anything
-            results[name] = {
-                k: v if k in MASK_NAMES else float("nan") for k, v in results[name].items()
-            }
+        if args.segmentation_only:
+            results[name] = mask_metrics_only(results[name])
     text = markdown_table(results, counts)
     print(f"{args.split} split of {args.data}: {len(records)} images, mean over images\n")
     print(text)

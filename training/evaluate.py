@@ -11,7 +11,7 @@ import torch
 from torch.nn import functional as F
 from tqdm import tqdm
 
-from sdcnet.metrics import MetricTable, frame_metrics
+from sdcnet.metrics import MASK_NAMES, MetricTable, frame_metrics
 from sdcnet.pipeline import ModelFn, complete
 from sdcnet.training.data.format import SampleStore
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
@@ -41,6 +41,12 @@ def torch_segmentation_fn(model: SDCNet, device: torch.device | str = "cpu") -> 
         return np.zeros_like(gray), prob.cpu().numpy()
 
     return run
+
+
+def mask_metrics_only(means: dict[str, float]) -> dict[str, float]:
+    """``means`` of a ``torch_segmentation_fn`` run with its depth metrics set to NaN: it
+    regressed no depth, so only IOU and IOI mean anything."""
+    return {k: v if k in MASK_NAMES else float("nan") for k, v in means.items()}
 
 
 class ClassicalFill(torch.nn.Module):

@@ -16,6 +16,7 @@ import shlex
 import sys
 import time
 from dataclasses import asdict, dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +26,16 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler, Subset
 from tqdm import tqdm
 
-from sdcnet.metrics import MASK_NAMES, NAMES
+from sdcnet.metrics import NAMES
 from sdcnet.training.checkpoint import save_checkpoint
-from sdcnet.training.data.format import SampleStore
+from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.dataset import TileDataset
-from sdcnet.training.evaluate import evaluate_records, torch_model_fn, torch_segmentation_fn
+from sdcnet.training.evaluate import (
+    evaluate_records,
+    mask_metrics_only,
+    torch_model_fn,
+    torch_segmentation_fn,
+)
 from sdcnet.training.losses import dense_depth_loss, foreground_depth_loss, segmentation_loss
 from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet
 
@@ -149,8 +155,7 @@ class Trainer:
             raise ValueError(f"{config.data} has no 'train' samples")
         self.val_records = self.store.split("val") or train[:2]
         if config.val_samples:
-            step = max(1, len(self.val_records) // config.val_samples)
-            self.val_records = self.val_records[::step][: config.val_samples]
+            self.val_records = evenly_spread(self.val_records, config.val_samples)
         variant = VARIANTS.get(config.variant)
         if variant is None:
             raise ValueError(
@@ -167,7 +172,6 @@ class Trainer:
         )
         self.state = {"stage": 1 if self.model.fsnet is not None else 2, "epoch": 0, "best": None}
         self.history: list[dict] = []
-        self._parent: dict | None = None  # provenance of the --init-weights checkpoint
 
     # --- bookkeeping ---------------------------------------------------------------------
 
@@ -187,10 +191,8 @@ class Trainer:
             },
         }
         if self.config.init_weights:
-            if self._parent is None:
-                state = self._read_init_weights()
-                self._parent = {k: state[k] for k in PROVENANCE if k in state}
-            provenance["parent"] = self._parent
+            state = self._init_checkpoint
+            provenance["parent"] = {k: state[k] for k in PROVENANCE if k in state}
         return provenance
 
     def _save(self, name: str, optimizer, scheduler) -> None:
@@ -303,10 +305,7 @@ class Trainer:
             progress=self.is_main,
             desc="validate",
         )
-        means = table.mean()
-        return {
-            k: v if k in MASK_NAMES or not mask_only else float("nan") for k, v in means.items()
-        }
+        return mask_metrics_only(table.mean()) if mask_only else table.mean()
 
     def _resume(self) -> tuple[dict | None, dict | None]:
         path = self.out / "last.pt"
@@ -326,8 +325,10 @@ class Trainer:
         self.model.load_state_dict({**own, **seg})
         self.state["stage"] = 2
 
-    def _read_init_weights(self) -> dict:
-        """The checkpoint fine-tuning starts from (same variant, else a clear error)."""
+    @cached_property
+    def _init_checkpoint(self) -> dict:
+        """The checkpoint fine-tuning starts from (same variant, else a clear error), read once
+        for its weights and its provenance."""
         state = torch.load(self.config.init_weights, map_location=self.device, weights_only=True)
         theirs = state.get("model_config")
         if theirs is None or ModelConfig.from_dict(theirs) != self.model.config:
@@ -339,7 +340,7 @@ class Trainer:
 
     def _init_weights(self) -> None:
         """Start from a whole trained model of the same variant (fine-tuning)."""
-        self.model.load_state_dict(self._read_init_weights()["model"])
+        self.model.load_state_dict(self._init_checkpoint["model"])
 
     def fit(self, resume: bool = True) -> Path:
         """Run (or resume) both stages; the best checkpoint: best.pt, or best_stage1.pt when

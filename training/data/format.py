@@ -76,6 +76,12 @@ def read_sample(path: Path) -> Sample:
     return Sample(arrays["gray"], arrays["sparse"], arrays["depth"], meta)
 
 
+def evenly_spread(records: list[dict], count: int) -> list[dict]:
+    """At most ``count`` of ``records``, taken at an even step from the first: a fixed,
+    representative subset (the order of a split mixes models and views)."""
+    return records[:: max(1, len(records) // count)][:count]
+
+
 def read_meta(path: Path) -> dict:
     """A sample's metadata alone, without decompressing its arrays."""
     with zipfile.ZipFile(path) as zf:

@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sdcnet.training.data.format import SampleStore
+from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,
@@ -23,9 +23,8 @@ def preview(root: str | Path, out: str | Path, count: int = 4, zoom: bool = True
     store = SampleStore(root)
     if len(store) == 0:
         raise ValueError(f"{root} holds no samples")
-    step = max(1, len(store) // count)
     rows = []
-    for record in store.records[::step][:count]:
+    for record in evenly_spread(store.records, count):
         s = store.load(record)
         window = object_crop(s.mask) if zoom else (slice(None), slice(None))
         valid = s.depth[s.mask]
