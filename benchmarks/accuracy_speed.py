@@ -24,10 +24,10 @@ import matplotlib.pyplot as plt
 import torch
 
 from benchmarks.common import DOCS, cpu_description, onnx_variants, write_markdown
+from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.metrics import MetricTable, frame_metrics, markdown_table
 from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.evaluate import ClassicalFill, torch_model_fn
 
 

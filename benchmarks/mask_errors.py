@@ -22,10 +22,10 @@ import torch
 from tqdm import tqdm
 
 from benchmarks.common import DOCS, write_markdown
+from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.metrics import frame_metrics, mask_error_bands
 from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.evaluate import torch_segmentation_fn
 
 SIZE_BINS_PX = (0, 20_000, 60_000, 200_000, 1024 * 1024 + 1)  # true foreground pixels

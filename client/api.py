@@ -22,6 +22,8 @@ import cv2
 import httpx
 import numpy as np
 
+from sdcnet.npyio import npy_bytes
+
 DEFAULT_URL = os.environ.get("SDCNET_URL", "http://127.0.0.1:8000")
 
 #: Transport failures worth another try: the request did not get through, or the answer was
@@ -94,12 +96,6 @@ def read_file(path: str | Path, what: str = "input") -> bytes:
         raise InputError(f"{what} is a directory, not a file: {path}") from None
     except OSError as exc:
         raise InputError(f"cannot read {what} file {path}: {exc.strerror or exc}") from None
-
-
-def npy_bytes(array: np.ndarray) -> bytes:
-    buffer = io.BytesIO()
-    np.save(buffer, array, allow_pickle=False)
-    return buffer.getvalue()
 
 
 def _gray_upload(gray: Source) -> tuple[str, bytes]:

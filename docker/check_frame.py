@@ -59,8 +59,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     """Exit 0 when the service's answer equals the host's onnxruntime run (see above)."""
     import onnxruntime
 
-    from sdcnet.export.runtime import OnnxModel
     from sdcnet.pipeline import complete
+    from sdcnet.runtime import OnnxModel
 
     gray = cv2.imread(str(args.dir / "gray.png"), cv2.IMREAD_UNCHANGED)
     sparse = np.load(args.dir / "sparse.npy", allow_pickle=False)

@@ -12,6 +12,7 @@ import json
 import sys
 from pathlib import Path
 
+from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.export.onnx_export import (
     MAX_DEPTH_ERROR_M,
     MIN_MASK_AGREEMENT,
@@ -21,7 +22,6 @@ from sdcnet.export.onnx_export import (
 )
 from sdcnet.export.variants import to_fp16, to_int8
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
 
 

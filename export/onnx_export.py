@@ -18,7 +18,7 @@ import torch
 
 from sdcnet import __version__
 from sdcnet.camera import PAPER_CAMERA
-from sdcnet.export.runtime import INPUTS, OUTPUTS, OnnxModel
+from sdcnet.runtime import INPUTS, OUTPUTS, OnnxModel
 from sdcnet.training.model.sdcnet import SDCNet
 
 OPSET = 17

@@ -16,7 +16,7 @@ from pathlib import Path
 import uvicorn
 from pydantic import ValidationError
 
-from sdcnet.export.runtime import ModelLoadError
+from sdcnet.runtime import ModelLoadError
 from sdcnet.service.app import create_app, load_model
 from sdcnet.service.settings import Settings
 

@@ -20,6 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
+from sdcnet.npyio import npy_bytes
 from sdcnet.pointcloud import ply_bytes
 from sdcnet.service.schemas import (
     CompletionResponse,
@@ -34,13 +35,6 @@ MEDIA_TYPES = {
     ResponseFormat.npz: "application/octet-stream",
     ResponseFormat.ply: "application/octet-stream",
 }
-
-
-def npy_bytes(array: np.ndarray) -> bytes:
-    """The ``.npy`` file of ``array`` (never pickled)."""
-    buffer = io.BytesIO()
-    np.lib.format.write_array(buffer, np.ascontiguousarray(array), allow_pickle=False)
-    return buffer.getvalue()
 
 
 def encoded_array(array: np.ndarray) -> EncodedArray:

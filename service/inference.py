@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from sdcnet.camera import Intrinsics
-from sdcnet.export.runtime import ModelLoadError, OnnxModel
 from sdcnet.pipeline import Completion, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
+from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.service.decode import check_same_size, decode_gray, decode_sparse
 from sdcnet.service.encode import encode
 from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, ResponseFormat, Timings

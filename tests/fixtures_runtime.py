@@ -10,7 +10,6 @@ service (``benchmarks.service_latency``, ``benchmarks.load``, ``benchmarks.fuzz`
 from __future__ import annotations
 
 import functools
-import io
 import json
 import os
 import re
@@ -28,8 +27,9 @@ import httpx
 import numpy as np
 import torch
 
+from sdcnet.dataset_format import Sample
 from sdcnet.export.onnx_export import export_onnx, model_metadata
-from sdcnet.training.data.format import Sample
+from sdcnet.npyio import npy_bytes
 from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
 from sdcnet.training.model.sdcnet import SDCNet
 
@@ -83,12 +83,6 @@ def png_bytes(image: np.ndarray, ext: str = ".png", params: list[int] | None = N
     ok, data = cv2.imencode(ext, image, params or [])
     assert ok
     return data.tobytes()
-
-
-def npy_bytes(array: np.ndarray, allow_pickle: bool = False) -> bytes:
-    buffer = io.BytesIO()
-    np.save(buffer, array, allow_pickle=allow_pickle)
-    return buffer.getvalue()
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ import torch
 from sdcnet.export.cli import main as export_main
 from sdcnet.export.cli import parity_frames
 from sdcnet.export.onnx_export import export_onnx, model_metadata, parity_check
-from sdcnet.export.runtime import ModelLoadError, OnnxModel
+from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.training.checkpoint import save_checkpoint
 from sdcnet.training.model.sdcnet import SDCNet
 

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR
-from sdcnet.training.data.format import SampleStore
+from sdcnet.dataset_format import SampleStore
 from sdcnet.training.data.generate import GenerateConfig, generate, model_splits
 from sdcnet.training.data.lidar import scan
 from sdcnet.training.data.materials import Material, jittered_shading

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
+from sdcnet.dataset_format import SampleStore
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
-from sdcnet.training.data.format import SampleStore
 from sdcnet.training.dataset import TileDataset
 from sdcnet.training.losses import foreground_depth_loss, segmentation_loss
 from sdcnet.training.model.cca import CrossChannelAttention

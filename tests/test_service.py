@@ -20,9 +20,9 @@ from fixtures_runtime import MODEL_VERSION, npy_bytes, png_bytes, random_model, 
 from fixtures_runtime import sample as generated
 
 from sdcnet.camera import Intrinsics
-from sdcnet.export.runtime import OnnxModel
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project, read_ply, statistical_outliers
+from sdcnet.runtime import OnnxModel
 
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 8 * 2**20

@@ -9,10 +9,10 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
+from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.metrics import markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
-from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.data.generate import GenerateConfig, generate
 from sdcnet.training.data.meshes import read_mesh_folder
 from sdcnet.training.evaluate import (
@@ -54,7 +54,7 @@ def _methods(args: argparse.Namespace) -> dict[str, tuple]:
         fn = torch_segmentation_fn(model) if segmentation_only else torch_model_fn(model)
         methods[name] = (fn, model.config.stride)
     if args.onnx:
-        from sdcnet.export.runtime import OnnxModel
+        from sdcnet.runtime import OnnxModel
 
         onnx_model = OnnxModel(args.onnx)
         methods[f"onnx:{Path(args.onnx).name}"] = (onnx_model.run, onnx_model.stride)

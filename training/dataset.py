@@ -12,8 +12,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from sdcnet.dataset_format import SampleStore
 from sdcnet.pipeline import Region, normalise_gray, region_of_interest
-from sdcnet.training.data.format import SampleStore
 
 
 def training_window(

@@ -11,9 +11,9 @@ import torch
 from torch.nn import functional as F
 from tqdm import tqdm
 
+from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import MASK_NAMES, MetricTable, frame_metrics
 from sdcnet.pipeline import ModelFn, complete
-from sdcnet.training.data.format import SampleStore
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
 from sdcnet.training.model.sdcnet import SDCNet
 

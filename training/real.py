@@ -14,10 +14,10 @@ import cv2
 import numpy as np
 
 from sdcnet.camera import Intrinsics
+from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import MetricTable, frame_metrics
 from sdcnet.pipeline import ModelFn, complete
 from sdcnet.pointcloud import back_project
-from sdcnet.training.data.format import SampleStore
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,

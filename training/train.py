@@ -26,9 +26,9 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler, Subset
 from tqdm import tqdm
 
+from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.metrics import NAMES
 from sdcnet.training.checkpoint import save_checkpoint
-from sdcnet.training.data.format import SampleStore, evenly_spread
 from sdcnet.training.dataset import TileDataset
 from sdcnet.training.evaluate import (
     evaluate_records,

@@ -12,7 +12,7 @@ from tqdm import tqdm
 
 from sdcnet import __version__
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR, Intrinsics
-from sdcnet.training.data.format import (
+from sdcnet.dataset_format import (
     FORMAT_VERSION,
     Sample,
     SampleStore,

@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sdcnet.training.data.format import SampleStore, evenly_spread
+from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,

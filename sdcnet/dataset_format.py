@@ -16,7 +16,6 @@ Files are byte-for-byte reproducible: fixed zip timestamps, sorted keys, no wall
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import zipfile
@@ -24,6 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from sdcnet.npyio import npy_bytes
 
 FORMAT_VERSION = 1
 ARRAYS = ("gray", "depth", "sparse")
@@ -54,13 +55,8 @@ def write_sample(path: Path, sample: Sample) -> None:
     tmp = path.with_suffix(".tmp")
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=6) as zf:
         for name in ARRAYS:
-            buffer = io.BytesIO()
-            np.lib.format.write_array(
-                buffer, np.ascontiguousarray(getattr(sample, name)), allow_pickle=False
-            )
-            zf.writestr(
-                zipfile.ZipInfo(f"{name}.npy", _ZIP_EPOCH), buffer.getvalue(), zipfile.ZIP_DEFLATED
-            )
+            data = npy_bytes(getattr(sample, name))
+            zf.writestr(zipfile.ZipInfo(f"{name}.npy", _ZIP_EPOCH), data, zipfile.ZIP_DEFLATED)
         meta = json.dumps(sample.meta, sort_keys=True).encode()
         zf.writestr(zipfile.ZipInfo("meta.json", _ZIP_EPOCH), meta, zipfile.ZIP_DEFLATED)
     os.replace(tmp, path)

@@ -1,0 +1,31 @@
+"""FastAPI dependencies every router shares: the settings and the loaded model."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Depends, Request
+
+from sdcnet.service.errors import ApiError
+from sdcnet.service.inference import Engine
+from sdcnet.service.settings import Settings, get_settings
+
+MODEL_NAME = "sdcnet"
+
+
+async def get_engine(request: Request) -> Engine:
+    """FastAPI dependency: the loaded model, or 503 while there is none."""
+    engine = request.app.state.engine
+    if engine is None:
+        settings: Settings = request.app.state.settings
+        raise ApiError(
+            503,
+            "not_ready",
+            "the model is not loaded (starting or stopping)",
+            headers={"Retry-After": str(settings.retry_after_s)},
+        )
+    return engine
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+EngineDep = Annotated[Engine, Depends(get_engine)]

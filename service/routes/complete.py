@@ -1,0 +1,134 @@
+"""``POST /complete``: a multipart form in, dense depth, mask and point cloud out."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
+from fastapi.responses import Response
+from pydantic import WithJsonSchema
+from starlette.concurrency import run_in_threadpool
+
+from sdcnet.service.deps import EngineDep, SettingsDep
+from sdcnet.service.encode import MEDIA_TYPES
+from sdcnet.service.errors import ERROR_RESPONSES, ApiError
+from sdcnet.service.inference import CompletionRequest, answer
+from sdcnet.service.schemas import CompletionResponse, ResponseFormat
+
+router = APIRouter(tags=["inference"])
+
+
+async def strict_form(request: Request) -> None:
+    """FastAPI dependency: 422 for a form field the endpoint does not take or one sent twice.
+
+    FastAPI would silently ignore the first (a typo such as ``outlier_remova``) and keep only
+    the last of the second (two ``gray`` files): both are a client's mistake worth naming.
+    The form is the one FastAPI already parsed (Starlette caches it).
+    """
+    known = {field.alias for field in request.scope["route"].dependant.body_params}
+    names = [name for name, _ in (await request.form()).multi_items()]
+    unknown = sorted(set(names) - known)
+    repeated = sorted({name for name in names if names.count(name) > 1} & known)
+    problems = [f"unknown form field {name!r}" for name in unknown]
+    problems += [f"form field {name!r} given {names.count(name)} times" for name in repeated]
+    if problems:
+        raise ApiError(
+            422, "invalid_request", "; ".join(problems) + f"; the fields are {sorted(known)}"
+        )
+
+
+_JSON_SCHEMA_BOUNDS = {"gt": "exclusiveMinimum", "ge": "minimum", "le": "maximum"}
+
+
+def optional_number(description: str, **bounds: float) -> Any:
+    """The type of an optional, finite numeric form field within ``bounds`` (gt, ge, le).
+
+    A form leaves such a field out, it cannot send null: the OpenAPI schema says a plain
+    number with its bounds (not "number or null"), so that clients and fuzzers generated from
+    the schema never send the string "null".
+    """
+    schema = {"type": "number", **{_JSON_SCHEMA_BOUNDS[k]: v for k, v in bounds.items()}}
+    return Annotated[
+        float | None,
+        Form(allow_inf_nan=False, description=description, **bounds),
+        WithJsonSchema(schema),
+    ]
+
+
+_DEFAULT_K = "default: the model's, scaled to the image size"
+FocalLength = optional_number(f"pixels; {_DEFAULT_K}", gt=0)
+PrincipalPoint = optional_number(f"pixels; {_DEFAULT_K}")
+#: Metres per unit of a 16-bit PNG sparse map, bounded so that every depth stays finite and
+#: non-zero in float32 (65535 units x 1000 m; 1 unit x 1 micrometre).
+DepthScale = optional_number("metres per unit of a 16-bit PNG sparse", ge=1e-6, le=1e3)
+
+
+@router.post(
+    "/complete",
+    response_model=CompletionResponse,
+    responses={
+        200: {
+            "description": "format=json: this document; format=npz: a zip of depth.npy, "
+            "mask.npy, points.npy and meta.json; format=ply: the point cloud as binary PLY",
+            "content": {"application/octet-stream": {}},
+            "headers": {
+                "Server-Timing": {
+                    "description": "milliseconds per phase: decode, queue, inference, encode",
+                    "required": True,
+                    "schema": {"type": "string"},
+                }
+            },
+        },
+        **ERROR_RESPONSES,
+    },
+    dependencies=[Depends(strict_form)],
+)
+async def complete(
+    request: Request,
+    engine: EngineDep,
+    settings: SettingsDep,
+    gray: Annotated[
+        UploadFile,
+        File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
+    ],
+    sparse: Annotated[
+        UploadFile,
+        File(
+            description=".npy of float32/float64 metres (0 = no return), or a 16-bit PNG "
+            "with depth_scale"
+        ),
+    ],
+    depth_scale: DepthScale = None,
+    fx: FocalLength = None,
+    fy: FocalLength = None,
+    cx: PrincipalPoint = None,
+    cy: PrincipalPoint = None,
+    outlier_removal: Annotated[
+        bool, Form(description="statistical outlier removal on the point cloud (Fig. 7)")
+    ] = False,
+    response_format: Annotated[
+        ResponseFormat, Query(alias="format", description="json, npz or ply")
+    ] = ResponseFormat.json,
+) -> Response:
+    """Complete one frame: dense depth (metres, 0 off the mask), mask and point cloud.
+
+    Intrinsics (pixels) not given are the model's, scaled to the image size.
+    """
+    req = CompletionRequest(
+        gray=await gray.read(),
+        sparse=await sparse.read(),
+        depth_scale=depth_scale,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        outlier_removal=outlier_removal,
+        format=response_format,
+    )
+    result = await run_in_threadpool(answer, engine, req, settings.max_pixels)
+    request.app.state.metrics.observe_phases(result.timer.seconds)
+    headers = {"Server-Timing": result.timer.server_timing()}
+    if response_format is not ResponseFormat.json:
+        name = f"sdcnet.{response_format.value}"
+        headers["Content-Disposition"] = f'attachment; filename="{name}"'
+    return Response(result.body, media_type=MEDIA_TYPES[response_format], headers=headers)
