@@ -9,10 +9,10 @@ import trimesh
 
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR
 from sdcnet.dataset_format import SampleStore
+from sdcnet.meshes import read_mesh_folder
 from sdcnet.training.data.generate import GenerateConfig, generate, model_splits
 from sdcnet.training.data.lidar import scan
 from sdcnet.training.data.materials import Material, jittered_shading
-from sdcnet.training.data.meshes import read_mesh_folder
 from sdcnet.training.data.render import PosedModel, render_camera
 from sdcnet.training.data.scene import Scene
 from sdcnet.training.data.spacecraft import (

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sdcnet.camera import PAPER_CAMERA
-from sdcnet.training.data.meshes import read_mesh_folder
+from sdcnet.meshes import read_mesh_folder
 from sdcnet.training.data.render import PosedModel, render_camera
 from sdcnet.training.data.scene import Scene
 from sdcnet.training.data.spacecraft import load_mesh_file

@@ -10,11 +10,11 @@ from dataclasses import fields
 from pathlib import Path
 
 from sdcnet.dataset_format import SampleStore, evenly_spread
+from sdcnet.meshes import read_mesh_folder
 from sdcnet.metrics import markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.data.generate import GenerateConfig, generate
-from sdcnet.training.data.meshes import read_mesh_folder
 from sdcnet.training.evaluate import (
     ClassicalFill,
     evaluate_records,

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sdcnet.meshes import read_mesh_folder
 from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
-from sdcnet.training.data.meshes import read_mesh_folder
 from sdcnet.training.data.preview import preview
 
 

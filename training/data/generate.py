@@ -21,8 +21,8 @@ from sdcnet.dataset_format import (
     sample_id,
     write_sample,
 )
+from sdcnet.meshes import MeshEntry
 from sdcnet.training.data.lidar import scan
-from sdcnet.training.data.meshes import MeshEntry
 from sdcnet.training.data.render import PosedModel, render_camera
 from sdcnet.training.data.scene import SceneConfig, sample_scene
 from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file, procedural_spacecraft

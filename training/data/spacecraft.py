@@ -10,18 +10,18 @@ solar wings 3-8 m, bus 1-3 m. The model depends only on (seed, model id).
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
+from sdcnet.meshes import load_scaled_mesh
 from sdcnet.training.data import parts
 from sdcnet.training.data.materials import Material, Shading, jittered_shading
 from sdcnet.training.data.parts import Assembly, pose, rot
 
 ARCHETYPES = ("comsat", "observer", "probe", "radial", "smallsat")
-MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
 
 
 @dataclass
@@ -34,10 +34,20 @@ class SpacecraftModel:
     texture: np.ndarray  # (F, 9) solar-cell grid frame per face (zeros where none)
     shading: list[Shading]  # indexed by Material value
     crinkle_waves: np.ndarray  # (K, 4): wave vector (1/m) and phase of the MLI crinkle
+    #: Where the origin of the user's mesh file lies in this centred frame, metres (zeros for
+    #: procedural models): a known target's frame is the file's (``sdcnet.targets``).
+    frame_origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def longest_m(self) -> float:
         return float(np.max(self.mesh.extents))
+
+    def file_frame_pose(
+        self, rotation: np.ndarray, translation: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t) of the file's frame, p_camera = R p_file + t, for the model placed at
+        (``rotation``, ``translation``) (its centred frame in the camera frame, metres)."""
+        return rotation, translation + rotation @ self.frame_origin
 
 
 def _rng(seed: int, model_id: int, purpose: int) -> np.random.Generator:
@@ -332,34 +342,22 @@ def load_mesh_file(
 ) -> SpacecraftModel:
     """A user's mesh (OBJ/STL/PLY/glTF/OFF) as a spacecraft model, centred, in metres.
 
-    ``longest_m`` scales the mesh so its longest bounding-box extent is that many metres;
-    otherwise its units times ``scale`` are taken as metres. Materials follow
+    Scaled as ``sdcnet.meshes.load_scaled_mesh`` says, then centred on its bounding box
+    (``frame_origin`` keeps where the file's origin went). Materials follow
     ``infer_materials``. Raises FileNotFoundError or ValueError with the reason.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
-    if path.suffix.lower() not in MESH_SUFFIXES:
-        raise ValueError(
-            f"unsupported mesh format {path.suffix!r} for {path}; use one of {MESH_SUFFIXES}"
-        )
-    try:
-        mesh = trimesh.load(path, force="mesh", process=True)
-    except Exception as exc:  # trimesh raises many types for malformed files
-        raise ValueError(f"cannot read mesh {path}: {exc}") from exc
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"mesh {path} holds no triangles")
-    extent = float(np.max(mesh.extents))
-    if not np.isfinite(extent) or extent <= 0:
-        raise ValueError(f"mesh {path} has a degenerate size ({extent})")
-    if longest_m is not None:
-        if longest_m <= 0:
-            raise ValueError(f"longest_m must be positive, got {longest_m}")
-        scale = longest_m / extent
-    mesh.apply_scale(scale)
-    mesh.apply_translation(-mesh.bounds.mean(axis=0))
+    mesh = load_scaled_mesh(path, longest_m, scale)
+    centre = mesh.bounds.mean(axis=0)
+    mesh.apply_translation(-centre)
     materials, texture = infer_materials(mesh)
     rng = np.random.default_rng([seed, zlib.crc32(path.stem.encode()), 1])
     return SpacecraftModel(
-        path.stem, mesh, materials, texture, jittered_shading(rng), _crinkle_waves(rng)
+        path.stem,
+        mesh,
+        materials,
+        texture,
+        jittered_shading(rng),
+        _crinkle_waves(rng),
+        frame_origin=-centre,
     )

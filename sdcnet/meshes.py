@@ -1,4 +1,8 @@
-"""Users' mesh folders: a directory of mesh files, optionally with a manifest of scales.
+"""Users' mesh files: a folder of meshes with an optional manifest of scales, and one mesh
+loaded in its own frame, in metres.
+
+Shared by the dataset generator (``sdc-data --meshes``) and the service's known targets
+(``sdc-serve --targets``). Needs trimesh (the ``data`` and ``serve`` extras), no torch.
 
 ``manifest.json`` is a list of entries ``{"file": "cassini.stl", "longest_m": 11.0}``
 (``name`` and other keys are kept as notes). Without a manifest every mesh file in the
@@ -11,7 +15,10 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from sdcnet.training.data.spacecraft import MESH_SUFFIXES
+import numpy as np
+import trimesh
+
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
 
 
 @dataclass(frozen=True)
@@ -55,3 +62,37 @@ def read_mesh_folder(folder: str | Path, scale: float = 1.0) -> tuple[MeshEntry,
             raise FileNotFoundError(f"{manifest} entry {k}: mesh file not found: {path}")
         result.append(MeshEntry(path, None if longest is None else float(longest), scale))
     return tuple(result)
+
+
+def load_scaled_mesh(
+    path: str | Path, longest_m: float | None = None, scale: float = 1.0
+) -> trimesh.Trimesh:
+    """The triangles of a mesh file (OBJ/STL/PLY/glTF/GLB/OFF) in the file's own frame, in
+    metres: a glTF scene's node transforms are applied, then the whole is scaled uniformly
+    so that its longest bounding-box extent is ``longest_m`` (else its units times ``scale``
+    are metres). Not centred: the file's origin stays the origin.
+    Raises FileNotFoundError or ValueError with the reason.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"mesh file not found: {path}")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise ValueError(
+            f"unsupported mesh format {path.suffix!r} for {path}; use one of {MESH_SUFFIXES}"
+        )
+    try:
+        # force="mesh" flattens a scene: every node's geometry moved by its world transform.
+        mesh = trimesh.load(path, force="mesh", process=True)
+    except Exception as exc:  # trimesh raises many types for malformed files
+        raise ValueError(f"cannot read mesh {path}: {exc}") from exc
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"mesh {path} holds no triangles")
+    extent = float(np.max(mesh.extents))
+    if not np.isfinite(extent) or extent <= 0:
+        raise ValueError(f"mesh {path} has a degenerate size ({extent})")
+    if longest_m is not None:
+        if longest_m <= 0:
+            raise ValueError(f"longest_m must be positive, got {longest_m}")
+        scale = longest_m / extent
+    mesh.apply_scale(scale)
+    return mesh
