@@ -6,10 +6,10 @@ A pure ASGI middleware, so that it can answer before the body is read:
   when declared, else as soon as the streamed bytes pass the limit; a body that stalls for
   ``body_timeout_s`` between two chunks (a client that sent less than its Content-Length and
   waits, or a slow-loris) gets 408, so that it cannot hold an in-flight place for ever;
-- ``POST /complete``: at most ``max_in_flight`` at once, the next ones get 503 with
-  Retry-After at once (no unbounded queue; Triton and Ray Serve do the same); the pending gauge,
-  the success / failure counters and the request latency are kept here, where every outcome
-  passes, the early refusals included. Probes and metrics are never limited.
+- ``POST /complete`` and ``POST /pose``: at most ``max_in_flight`` at once, together, the next
+  ones get 503 with Retry-After at once (no unbounded queue; Triton and Ray Serve do the same);
+  the pending gauge, the success / failure counters and the request latency are kept here,
+  where every outcome passes, the early refusals included. Probes and metrics are never limited.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from sdcnet.service.errors import ApiError, error_response
 from sdcnet.service.metrics import ServiceMetrics
 
-INFERENCE_PATH = "/complete"
+INFERENCE_PATHS = frozenset({"/complete", "/pose"})
 
 
 class Admission:
@@ -74,7 +74,7 @@ class Admission:
             await self.app(scope, receive, send)
             return
         path = scope["path"].removeprefix(scope.get("root_path", ""))
-        inference = scope["method"] == "POST" and path == INFERENCE_PATH
+        inference = scope["method"] == "POST" and path in INFERENCE_PATHS
         declared = dict(scope["headers"]).get(b"content-length")
         if declared is not None and int(declared) > self.max_upload_bytes:
             await self._refuse(self._too_large(), inference, scope, receive, send)

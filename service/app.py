@@ -22,8 +22,10 @@ from sdcnet.service.admission import Admission
 from sdcnet.service.errors import install_error_handlers
 from sdcnet.service.inference import Engine, self_test
 from sdcnet.service.metrics import ServiceMetrics
+from sdcnet.service.pose import configured_targets
 from sdcnet.service.routes import ROUTERS
 from sdcnet.service.settings import Settings
+from sdcnet.targets import Target
 
 logger = logging.getLogger("sdcnet.service")
 
@@ -32,7 +34,8 @@ DESCRIPTION = """
 Dense depth of a spacecraft from a gray image and a very sparse LIDAR depth map (SDCNet).
 
 `POST /complete` takes a multipart form (`gray` image, `sparse` depth map, optional
-intrinsics) and answers a dense depth map, a foreground mask and a point cloud.
+intrinsics) and answers a dense depth map, a foreground mask and a point cloud. `POST /pose`
+takes the same form plus a known target's name and answers its 6-DoF pose.
 
 Every error, whatever its status, is `{"error": {"code": ..., "message": ...}}`
 (validation errors add `details`, one per invalid field).
@@ -78,9 +81,14 @@ def close_form_schemas(app: FastAPI) -> None:
     app.openapi = openapi  # type: ignore[method-assign]
 
 
-def create_app(settings: Settings | None = None, model: OnnxModel | None = None) -> FastAPI:
+def create_app(
+    settings: Settings | None = None,
+    model: OnnxModel | None = None,
+    targets: dict[str, Target] | None = None,
+) -> FastAPI:
     """The service. ``settings`` default to the environment; ``model`` (already loaded)
-    defaults to loading ``settings.model_path`` at start-up."""
+    defaults to loading ``settings.model_path`` at start-up, ``targets`` (already prepared)
+    to preparing those of ``settings.targets``."""
     settings = settings or Settings()
     service_metrics = ServiceMetrics()
 
@@ -102,6 +110,7 @@ def create_app(settings: Settings | None = None, model: OnnxModel | None = None)
             loaded.threads,
             settings.max_in_flight,
         )
+        app.state.targets = configured_targets(settings) if targets is None else targets
         app.state.engine = Engine(loaded)
         yield
         app.state.engine = None  # not ready while shutting down
@@ -115,6 +124,7 @@ def create_app(settings: Settings | None = None, model: OnnxModel | None = None)
     app.state.settings = settings
     app.state.metrics = service_metrics
     app.state.engine = None
+    app.state.targets = {}
     install_error_handlers(app)
     app.add_middleware(
         Admission,

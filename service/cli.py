@@ -1,7 +1,7 @@
 """``sdc-serve``: the inference service under uvicorn. Flags override ``SDCNET_*`` variables.
 
-The model is loaded before the server starts, so a missing or broken file is one clear line
-and exit status 2, not a traceback.
+The model (and the targets) are loaded before the server starts, so a missing or broken file
+is one clear line and exit status 2, not a traceback.
 """
 
 from __future__ import annotations
@@ -18,7 +18,9 @@ from pydantic import ValidationError
 
 from sdcnet.runtime import ModelLoadError
 from sdcnet.service.app import create_app, load_model
+from sdcnet.service.pose import configured_targets
 from sdcnet.service.settings import Settings
+from sdcnet.targets import TargetError
 
 logger = logging.getLogger("sdcnet.service")
 
@@ -48,6 +50,7 @@ FLAGS = [
     ("--model", "model_path", Path),
     ("--provider", "provider", str),
     ("--threads", "threads", int),
+    ("--targets", "targets", Path),
     ("--host", "host", str),
     ("--port", "port", int),
     ("--max-in-flight", "max_in_flight", int),
@@ -102,13 +105,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         model = load_model(settings)
-    except ModelLoadError as exc:
+        targets = configured_targets(settings)
+    except (ModelLoadError, TargetError) as exc:
         print(f"sdc-serve: {exc}", file=sys.stderr)
         return 2
     logger.info("execution provider: %s (%d threads)", model.provider, model.threads)
     try:
         uvicorn.run(
-            create_app(settings, model),
+            create_app(settings, model, targets),
             host=settings.host,
             port=settings.port,
             log_level=settings.log_level,

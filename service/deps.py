@@ -1,4 +1,4 @@
-"""FastAPI dependencies every router shares: the settings and the loaded model."""
+"""FastAPI dependencies the routers share: the settings, the loaded model, the targets."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from fastapi import Depends, Request
 from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import Engine
 from sdcnet.service.settings import Settings, get_settings
+from sdcnet.targets import Target
 
 MODEL_NAME = "sdcnet"
 
@@ -27,5 +28,11 @@ async def get_engine(request: Request) -> Engine:
     return engine
 
 
+async def get_targets(request: Request) -> dict[str, Target]:
+    """FastAPI dependency: the known targets by name (``sdc-serve --targets``), maybe none."""
+    return request.app.state.targets
+
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
+TargetsDep = Annotated[dict[str, Target], Depends(get_targets)]
 EngineDep = Annotated[Engine, Depends(get_engine)]

@@ -44,9 +44,9 @@ class PhaseTimer:
     def timings(self) -> Timings:
         return Timings(**{f"{p}_ms": round(self.seconds.get(p, 0.0) * 1e3, 3) for p in PHASES})
 
-    def server_timing(self) -> str:
+    def server_timing(self, phases: tuple[str, ...] = PHASES) -> str:
         """The ``Server-Timing`` header (milliseconds), shown by browsers' developer tools."""
-        return ", ".join(f"{p};dur={self.seconds.get(p, 0.0) * 1e3:.3f}" for p in PHASES)
+        return ", ".join(f"{p};dur={self.seconds.get(p, 0.0) * 1e3:.3f}" for p in phases)
 
 
 class Engine:
@@ -139,9 +139,20 @@ def pixel_scale(model_fx: float, fx: float, pixels: int, max_pixels: int) -> flo
     return float(np.clip(zoom, 1 / MAX_ZOOM, min(MAX_ZOOM, (max_pixels / pixels) ** 0.5)))
 
 
-def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
-    """Decode, complete, encode one request; raises ``ApiError`` for bad input."""
-    timer = PhaseTimer()
+@dataclass(frozen=True)
+class CompletedFrame:
+    """One request's frame, decoded and completed: what ``POST /complete`` encodes and
+    ``POST /pose`` registers."""
+
+    sparse: np.ndarray  # (H, W) float32 metres, the request's LIDAR returns
+    result: Completion
+    intrinsics: Intrinsics
+
+
+def complete_request(
+    engine: Engine, req: CompletionRequest, max_pixels: int, timer: PhaseTimer
+) -> CompletedFrame:
+    """Decode and complete one request; raises ``ApiError`` for bad input."""
     with timer("decode"):
         gray = decode_gray(req.gray, max_pixels)
         sparse = decode_sparse(req.sparse, req.depth_scale, max_pixels)
@@ -149,22 +160,46 @@ def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
     height, width = gray.shape
     K = request_intrinsics(engine.model.info.intrinsics, width, height, req)
     zoom = pixel_scale(engine.model.info.intrinsics.fx, K.fx, width * height, max_pixels)
-    result = engine.complete(gray, sparse, zoom, timer)
+    return CompletedFrame(sparse, engine.complete(gray, sparse, zoom, timer), K)
+
+
+def completed_cloud(frame: CompletedFrame, outlier_removal: bool) -> tuple[np.ndarray, int]:
+    """(points (N, 3) camera frame, metres; how many the outlier removal dropped)."""
+    result, K = frame.result, frame.intrinsics
+    valid = result.mask & (result.depth > 0)
+    kept = statistical_outliers(result.depth, valid, K) if outlier_removal else valid
+    points = back_project(result.depth, kept, K)
+    return points, int(np.count_nonzero(valid)) - len(points)
+
+
+def frame_summary(
+    engine: Engine, frame: CompletedFrame, point_count: int, outliers_removed: int
+) -> dict:
+    """The fields of ``FrameSummary`` for one completed frame."""
+    height, width = frame.sparse.shape
+    K = frame.intrinsics
+    return {
+        "model_version": engine.model.info.version,
+        "provider": engine.model.provider,
+        "width": width,
+        "height": height,
+        "intrinsics": CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
+        "returns": int(np.count_nonzero(frame.sparse)),
+        "foreground_px": int(np.count_nonzero(frame.result.mask)),
+        "point_count": point_count,
+        "outliers_removed": outliers_removed,
+    }
+
+
+def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
+    """Decode, complete, encode one request; raises ``ApiError`` for bad input."""
+    timer = PhaseTimer()
+    frame = complete_request(engine, req, max_pixels, timer)
     with timer("encode"):
-        valid = result.mask & (result.depth > 0)
-        kept = statistical_outliers(result.depth, valid, K) if req.outlier_removal else valid
-        points = back_project(result.depth, kept, K)
-        encoded = encode(req.format, result.depth, result.mask.astype(np.uint8), points)
+        points, removed = completed_cloud(frame, req.outlier_removal)
+        mask = frame.result.mask.astype(np.uint8)
+        encoded = encode(req.format, frame.result.depth, mask, points)
     summary = CompletionSummary(
-        model_version=engine.model.info.version,
-        provider=engine.model.provider,
-        width=width,
-        height=height,
-        intrinsics=CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
-        returns=int(np.count_nonzero(sparse)),
-        foreground_px=int(np.count_nonzero(result.mask)),
-        point_count=len(points),
-        outliers_removed=int(np.count_nonzero(valid)) - len(points),
-        timings=timer.timings(),
+        **frame_summary(engine, frame, len(points), removed), timings=timer.timings()
     )
     return Answer(encoded.finish(summary), timer)

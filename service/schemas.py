@@ -58,8 +58,8 @@ class Timings(BaseModel):
     encode_ms: float = Field(description="point cloud (and outlier removal), array encoding")
 
 
-class CompletionSummary(BaseModel):
-    """Everything about one answer except its arrays (npz: meta.json)."""
+class FrameSummary(BaseModel):
+    """One completed frame, its arrays and timings aside."""
 
     model_version: str
     provider: str = Field(description="onnxruntime execution provider that ran the model")
@@ -70,6 +70,11 @@ class CompletionSummary(BaseModel):
     foreground_px: int = Field(description="pixels in the mask")
     point_count: int = Field(description="points in the cloud")
     outliers_removed: int = Field(description="points dropped by statistical outlier removal")
+
+
+class CompletionSummary(FrameSummary):
+    """Everything about one answer except its arrays (npz: meta.json)."""
+
     timings: Timings
 
 
@@ -98,6 +103,17 @@ class TensorMetadata(BaseModel):
     description: str = ""
 
 
+class TargetInfo(BaseModel):
+    """A known target (``sdc-serve --targets``)."""
+
+    name: str = Field(description="its file's stem: POST /pose's `target`")
+    file: str
+    longest_m: float = Field(description="longest bounding-box extent, metres")
+    bounds_m: list[list[float]] = Field(description="[min xyz, max xyz] in its frame, metres")
+    faces: int
+    symmetries: int = Field(description="self-symmetries found (turns that map it onto itself)")
+
+
 class ModelMetadata(BaseModel):
     """``GET /model`` and ``GET /v2/models/sdcnet``: KServe v2 model metadata plus sdcnet's."""
 
@@ -116,3 +132,6 @@ class ModelMetadata(BaseModel):
     )
     metrics: dict[str, Any] = Field(description="the model card's headline metrics")
     limits: dict[str, int] = Field(description="max_pixels, max_upload_bytes, max_in_flight")
+    targets: list[TargetInfo] = Field(
+        default_factory=list, description="known targets of POST /pose (sdc-serve --targets)"
+    )

@@ -48,6 +48,11 @@ class Settings(BaseSettings):
         ge=1,
         description="onnxruntime intra-op threads (default: the CPUs this process may use)",
     )
+    targets: Path | None = Field(
+        default=None,
+        description="folder of known targets' meshes (STL, OBJ, PLY, glTF/GLB) with a "
+        "manifest.json of {file, longest_m} entries, for POST /pose; default: none",
+    )
     host: str = Field(default="127.0.0.1", description="address to bind")
     port: int = Field(default=8000, ge=0, le=65535, description="TCP port (0: any free port)")
     max_in_flight: int = Field(

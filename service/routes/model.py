@@ -6,8 +6,8 @@ import json
 
 from fastapi import APIRouter
 
-from sdcnet.service.deps import MODEL_NAME, EngineDep, SettingsDep
-from sdcnet.service.schemas import CameraIntrinsics, ModelMetadata, TensorMetadata
+from sdcnet.service.deps import MODEL_NAME, EngineDep, SettingsDep, TargetsDep
+from sdcnet.service.schemas import CameraIntrinsics, ModelMetadata, TargetInfo, TensorMetadata
 
 router = APIRouter(tags=["model"])
 _DATATYPES = {"tensor(float)": "FP32", "tensor(float16)": "FP16", "tensor(double)": "FP64"}
@@ -15,8 +15,11 @@ _DATATYPES = {"tensor(float)": "FP32", "tensor(float16)": "FP16", "tensor(double
 
 @router.get("/model", response_model=ModelMetadata)
 @router.get(f"/v2/models/{MODEL_NAME}", response_model=ModelMetadata)
-async def model_metadata(engine: EngineDep, settings: SettingsDep) -> ModelMetadata:
-    """What the loaded model is: version, tensors, default intrinsics, metrics, limits."""
+async def model_metadata(
+    engine: EngineDep, settings: SettingsDep, targets: TargetsDep
+) -> ModelMetadata:
+    """What the loaded model is: version, tensors, default intrinsics, metrics, limits, and
+    the known targets of ``POST /pose``."""
     model = engine.model
     info = model.info
     described = {
@@ -54,4 +57,5 @@ async def model_metadata(engine: EngineDep, settings: SettingsDep) -> ModelMetad
             "max_upload_bytes": settings.max_upload_bytes,
             "max_in_flight": settings.max_in_flight,
         },
+        targets=[TargetInfo(**target.describe()) for target in targets.values()],
     )

@@ -1,0 +1,150 @@
+"""One ``POST /pose``: the frame completed as ``POST /complete`` completes it, then the
+known target registered to the completed cloud (``sdcnet.registration``), in a worker thread.
+
+decode -> queue -> inference (``service.inference.complete_request``, the same code as
+``POST /complete``) -> cloud (the completed depth and the LIDAR returns back-projected) ->
+registration. The target and ``init`` are checked before any image is decoded.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sdcnet.pointcloud import back_project
+from sdcnet.registration import PoseEstimate, TooFewPointsError, estimate_pose
+from sdcnet.rigid import Pose, parse_pose
+from sdcnet.service.errors import ApiError
+from sdcnet.service.inference import (
+    CompletionRequest,
+    Engine,
+    PhaseTimer,
+    complete_request,
+    completed_cloud,
+    frame_summary,
+)
+from sdcnet.service.pose_schemas import PoseAlternative, PoseResponse, PoseTimings, PoseValue
+from sdcnet.service.schemas import FrameSummary
+from sdcnet.service.settings import Settings
+from sdcnet.targets import Target, load_targets
+
+logger = logging.getLogger("sdcnet.service")
+
+
+def configured_targets(settings: Settings) -> dict[str, Target]:
+    """The targets of ``settings.targets`` (none when unset), prepared and logged; raises
+    ``sdcnet.targets.TargetError`` with the reason."""
+    if settings.targets is None:
+        return {}
+    started = time.perf_counter()
+    targets = load_targets(settings.targets)
+    logger.info(
+        "%d targets from %s prepared in %.1f s: %s",
+        len(targets),
+        settings.targets,
+        time.perf_counter() - started,
+        ", ".join(f"{t.name} ({t.longest_m:.1f} m)" for t in targets.values()),
+    )
+    return targets
+
+
+@dataclass(frozen=True)
+class PoseRequest:
+    frame: CompletionRequest
+    target: str
+    init: str | None = None  # JSON of a previous answer's `pose`
+
+
+def find_target(targets: dict[str, Target], name: str) -> Target:
+    """The named target, or 422 ``unknown_target`` listing the known ones."""
+    if name in targets:
+        return targets[name]
+    known = ", ".join(sorted(targets)) or "none (start sdc-serve with --targets DIR)"
+    raise ApiError(422, "unknown_target", f"unknown target {name!r}; known targets: {known}")
+
+
+def read_init(text: str | None) -> Pose | None:
+    """``init`` as a pose, or 422 ``invalid_init`` saying what is wrong with it."""
+    if text is None:
+        return None
+    try:
+        return parse_pose(json.loads(text))
+    except json.JSONDecodeError as exc:
+        raise ApiError(422, "invalid_init", f"init is not valid JSON: {exc}") from exc
+    except ValueError as exc:
+        raise ApiError(422, "invalid_init", f"init: {exc}") from exc
+
+
+def _pose_value(pose: Pose) -> PoseValue:
+    return PoseValue(**pose.as_dict())
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
+def pose_response(
+    target: Target, estimate: PoseEstimate, completion: FrameSummary, timer: PhaseTimer
+) -> PoseResponse:
+    covariance = estimate.covariance
+    finite = bool(np.all(np.isfinite(covariance)))
+    seconds = timer.seconds
+    return PoseResponse(
+        target=target.name,
+        pose=_pose_value(estimate.pose),
+        tracked=estimate.tracked,
+        fitness=estimate.fitness,
+        rmse_m=estimate.rmse_m,
+        returns_rmse_m=estimate.returns_rmse_m,
+        consistency=estimate.consistency,
+        converged=estimate.converged,
+        covariance=covariance.tolist() if finite else None,
+        rotation_sigma_deg=_finite(estimate.rotation_sigma_deg) if finite else None,
+        translation_sigma_m=_finite(estimate.translation_sigma_m) if finite else None,
+        ambiguous=estimate.ambiguous,
+        alternatives=[
+            PoseAlternative(
+                pose=_pose_value(h.pose),
+                consistency=h.consistency,
+                returns_error_m=_finite(h.returns_error_m),
+            )
+            for h in estimate.alternatives
+        ],
+        hypotheses=estimate.hypotheses,
+        completion=completion,
+        timings=PoseTimings(
+            **{f"{p}_ms": round(seconds.get(p, 0.0) * 1e3, 3) for p in POSE_PHASES},
+            search_ms=estimate.timings_ms.get("search_ms", 0.0),
+        ),
+    )
+
+
+POSE_PHASES = ("decode", "queue", "inference", "cloud", "registration")
+
+
+def answer_pose(
+    engine: Engine, targets: dict[str, Target], req: PoseRequest, max_pixels: int
+) -> tuple[PoseResponse, PhaseTimer]:
+    """Check, complete, register one request; raises ``ApiError`` for bad input."""
+    target = find_target(targets, req.target)
+    init = read_init(req.init)
+    timer = PhaseTimer()
+    frame = complete_request(engine, req.frame, max_pixels, timer)
+    with timer("cloud"):
+        points, removed = completed_cloud(frame, req.frame.outlier_removal)
+        returns = back_project(frame.sparse, frame.sparse > 0, frame.intrinsics)
+    with timer("registration"):
+        try:
+            estimate = estimate_pose(target.model, points, returns, init)
+        except TooFewPointsError as exc:
+            raise ApiError(
+                422,
+                "too_few_points",
+                f"the completed cloud is too small to register {target.name}: {exc}",
+            ) from exc
+    completion = FrameSummary(**frame_summary(engine, frame, len(points), removed))
+    return pose_response(target, estimate, completion, timer), timer

@@ -1,0 +1,98 @@
+"""``POST /pose``: the form of ``POST /complete`` plus a known target's name (and, to track,
+the previous answer's pose); the target's 6-DoF pose in the camera frame out."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, File, Form, Request, UploadFile
+from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
+
+from sdcnet.service.deps import EngineDep, SettingsDep, TargetsDep
+from sdcnet.service.errors import ERROR_RESPONSES
+from sdcnet.service.inference import CompletionRequest
+from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose
+from sdcnet.service.pose_schemas import PoseResponse
+from sdcnet.service.routes.complete import DepthScale, FocalLength, PrincipalPoint, strict_form
+
+router = APIRouter(tags=["pose"])
+
+
+@router.post(
+    "/pose",
+    response_model=PoseResponse,
+    responses={
+        200: {
+            "headers": {
+                "Server-Timing": {
+                    "description": "milliseconds per phase: decode, queue, inference, cloud, "
+                    "registration",
+                    "required": True,
+                    "schema": {"type": "string"},
+                }
+            },
+        },
+        **ERROR_RESPONSES,
+    },
+    dependencies=[Depends(strict_form)],
+)
+async def pose(
+    request: Request,
+    engine: EngineDep,
+    settings: SettingsDep,
+    targets: TargetsDep,
+    gray: Annotated[
+        UploadFile,
+        File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
+    ],
+    sparse: Annotated[
+        UploadFile,
+        File(
+            description=".npy of float32/float64 metres (0 = no return), or a 16-bit PNG "
+            "with depth_scale"
+        ),
+    ],
+    target: Annotated[str, Form(description="a known target's name (GET /model lists them)")],
+    init: Annotated[
+        str | None,
+        Form(
+            description='to track: a previous answer\'s `pose` as JSON, {"R": 3 x 3, "t": '
+            '3} or {"quaternion_wxyz": 4, "t": 3}; without it the pose is found from scratch'
+        ),
+    ] = None,
+    depth_scale: DepthScale = None,
+    fx: FocalLength = None,
+    fy: FocalLength = None,
+    cx: PrincipalPoint = None,
+    cy: PrincipalPoint = None,
+    outlier_removal: Annotated[
+        bool, Form(description="statistical outlier removal on the completed cloud first")
+    ] = False,
+) -> JSONResponse:
+    """The pose of a known target, p_camera = R p_target + t (camera x right, y down,
+    z forward; metres), from one frame: completed as by `POST /complete`, then registered.
+
+    Without `init` the pose is searched from scratch; with it, refined from it (tracking at
+    the LIDAR's 10 Hz), falling back to the search when the refinement explains the frame
+    poorly. A symmetric target's answer says `ambiguous` and lists the alternatives.
+    """
+    req = PoseRequest(
+        frame=CompletionRequest(
+            gray=await gray.read(),
+            sparse=await sparse.read(),
+            depth_scale=depth_scale,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+            outlier_removal=outlier_removal,
+        ),
+        target=target,
+        init=init,
+    )
+    answer, timer = await run_in_threadpool(answer_pose, engine, targets, req, settings.max_pixels)
+    request.app.state.metrics.observe_phases(timer.seconds)
+    return JSONResponse(
+        answer.model_dump(), headers={"Server-Timing": timer.server_timing(POSE_PHASES)}
+    )
