@@ -1,8 +1,10 @@
-"""``sdc-data``: generate the synthetic dataset, preview it, benchmark the generator."""
+"""``sdc-data``: generate the synthetic dataset, preview it, render pose-tracking sequences,
+benchmark the generator."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -13,6 +15,11 @@ import numpy as np
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
 from sdcnet.training.data.preview import preview
+from sdcnet.training.data.sequence import TRAJECTORIES, SequenceConfig, write_sequences
+from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file
+
+#: Model ids of ``sdc-data sequence --meshes`` files: after any procedural dataset's.
+MESH_IDS = 1000
 
 
 def _shard(text: str) -> tuple[int, int]:
@@ -101,6 +108,58 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def sequence_models(args: argparse.Namespace) -> dict[int, tuple[SpacecraftModel, str]]:
+    """The models of ``sdc-data sequence``: a dataset split's procedural models (rebuilt from
+    the dataset's seed, same ids) and the folder's meshes (ids 1000, 1001, ...)."""
+    models: dict[int, tuple[SpacecraftModel, str]] = {}
+    if args.dataset:
+        info_path = Path(args.dataset) / "dataset.json"
+        if not info_path.is_file():
+            raise FileNotFoundError(f"{args.dataset} is not an sdcnet dataset: no dataset.json")
+        info = json.loads(info_path.read_text())
+        config = GenerateConfig(models=info["models"], seed=info["seed"])
+        ids = [int(m) for m, split in info["model_split"].items() if split == args.split]
+        ids = [m for m in ids if m < info["models"]]
+        if not ids:
+            raise ValueError(f"{args.dataset} has no procedural model in split {args.split!r}")
+        step = max(1, len(ids) // args.limit) if args.limit else 1
+        for m in ids[::step][: args.limit or None]:
+            models[m] = (build_model(config, m), args.split)
+    if args.meshes:
+        for k, entry in enumerate(read_mesh_folder(args.meshes)):
+            mesh = load_mesh_file(entry.path, entry.longest_m, entry.scale, seed=args.seed)
+            models[MESH_IDS + k] = (mesh, args.mesh_split)
+    if not models:
+        raise ValueError("give --dataset (with --split) and/or --meshes: no model to render")
+    return models
+
+
+def cmd_sequence(args: argparse.Namespace) -> int:
+    config = SequenceConfig(
+        frames=args.frames, size=args.size, seed=args.seed, trajectories=tuple(args.trajectories)
+    )
+    models = sequence_models(args)
+    command = (
+        f"sdc-data sequence --frames {args.frames} --size {args.size} --seed {args.seed} "
+        f"--trajectories {' '.join(args.trajectories)}"
+        + (
+            f" --dataset {args.dataset} --split {args.split} --limit {args.limit}"
+            if args.dataset
+            else ""
+        )
+        + (f" --meshes {args.meshes}" if args.meshes else "")
+    )
+    started = time.perf_counter()
+    manifest = write_sequences(models, config, args.out, command, progress=not args.quiet)
+    count = len(models) * len(config.trajectories) * config.frames
+    print(
+        f"{count} frames ({len(models)} models x {len(config.trajectories)} trajectories x "
+        f"{config.frames} frames at {config.rate_hz:g} Hz) in {args.out} after "
+        f"{time.perf_counter() - started:.0f} s; {manifest}"
+    )
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sdc-data", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -137,6 +196,23 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--count", type=int, default=4)
     v.add_argument("--full-frame", action="store_true", help="show whole frames, not object crops")
     v.set_defaults(func=cmd_preview)
+
+    q = sub.add_parser(
+        "sequence",
+        help="trajectories at 10 Hz (approach, fly-around, tumble) with every frame's pose",
+    )
+    q.add_argument("--out", type=Path, required=True, help="output directory")
+    q.add_argument("--dataset", type=Path, help="a dataset whose split's models to render")
+    q.add_argument("--split", default="test", help="that split (default test)")
+    q.add_argument("--limit", type=int, default=0, help="at most this many of its models")
+    q.add_argument("--meshes", type=Path, help="folder of your meshes (manifest.json)")
+    q.add_argument("--mesh-split", default="real", help="split name of the folder's meshes")
+    q.add_argument("--frames", type=int, default=30, help="frames per trajectory (10 Hz)")
+    q.add_argument("--trajectories", nargs="+", choices=TRAJECTORIES, default=list(TRAJECTORIES))
+    q.add_argument("--size", type=int, default=1024, help="image side in pixels (same optics)")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.set_defaults(func=cmd_sequence)
 
     b = sub.add_parser("bench", help="seconds per sample and LIDAR density")
     b.add_argument("--models", type=int, default=4)

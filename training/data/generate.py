@@ -24,7 +24,7 @@ from sdcnet.dataset_format import (
 from sdcnet.meshes import MeshEntry
 from sdcnet.training.data.lidar import scan
 from sdcnet.training.data.render import PosedModel, render_camera
-from sdcnet.training.data.scene import SceneConfig, sample_scene
+from sdcnet.training.data.scene import Scene, SceneConfig, sample_scene
 from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file, procedural_spacecraft
 
 PAPER_SPLIT = (99, 9, 18)  # train / val / test models of 126 (paper sec. IV)
@@ -95,25 +95,16 @@ def build_model(config: GenerateConfig, model_id: int) -> SpacecraftModel:
     )
 
 
-def make_sample(
-    config: GenerateConfig, model: SpacecraftModel, model_id: int, view: int, split: str
+def render_scene(
+    model: SpacecraftModel, scene: Scene, K: Intrinsics, seeds: tuple[int, ...]
 ) -> Sample:
-    """Render one frame; depends only on (config, model, view)."""
-    K = config.intrinsics
-    scene = sample_scene(np.random.default_rng([config.seed, model_id, view, 1]), config.scene)
+    """Camera frame and LIDAR scan of ``model`` placed as ``scene``; the noise is drawn from
+    ``seeds`` (+ 2 for the camera, + 3 for the LIDAR). Meta: what the frame shows."""
     posed = PosedModel.place(model, scene)
-    frame = render_camera(posed, K, np.random.default_rng([config.seed, model_id, view, 2]))
-    sparse = scan(
-        posed.caster, PAPER_LIDAR, K, np.random.default_rng([config.seed, model_id, view, 3])
-    )
-    sid = sample_id(model_id, view)
+    frame = render_camera(posed, K, np.random.default_rng([*seeds, 2]))
+    sparse = scan(posed.caster, PAPER_LIDAR, K, np.random.default_rng([*seeds, 3]))
     meta = {
-        "id": sid,
-        "file": f"samples/{sid}.npz",
-        "model": model_id,
         "model_name": model.name,
-        "split": split,
-        "view": view,
         "intrinsics": K.as_dict(),
         "returns": int(np.count_nonzero(sparse)),
         "foreground_px": int(np.count_nonzero(frame.depth)),
@@ -121,6 +112,18 @@ def make_sample(
         **scene.metadata(),
     }
     return Sample(frame.gray, sparse, frame.depth, meta)
+
+
+def make_sample(
+    config: GenerateConfig, model: SpacecraftModel, model_id: int, view: int, split: str
+) -> Sample:
+    """Render one frame; depends only on (config, model, view)."""
+    scene = sample_scene(np.random.default_rng([config.seed, model_id, view, 1]), config.scene)
+    sample = render_scene(model, scene, config.intrinsics, (config.seed, model_id, view))
+    sid = sample_id(model_id, view)
+    head = {"id": sid, "file": f"samples/{sid}.npz", "model": model_id}
+    sample.meta = {**head, **sample.meta, "split": split, "view": view}
+    return sample
 
 
 _worker_cache: dict[int, SpacecraftModel] = {}
