@@ -1,4 +1,5 @@
-"""Python API of the sdcnet service, on httpx: ``Client(url).complete(gray, sparse)``.
+"""Python API of the sdcnet service, on httpx: ``Client(url).complete(gray, sparse)``,
+``Client(url).pose(gray, sparse, target)``.
 
 Needs numpy, OpenCV and httpx only (no torch, onnxruntime or FastAPI). Inputs may be arrays,
 file paths or raw file bytes; answers come back as numpy arrays (the service's npz format,
@@ -23,6 +24,7 @@ import httpx
 import numpy as np
 
 from sdcnet.npyio import npy_bytes
+from sdcnet.rigid import Pose, parse_pose
 
 DEFAULT_URL = os.environ.get("SDCNET_URL", "http://127.0.0.1:8000")
 
@@ -85,6 +87,28 @@ class Completion:
         return self.meta.get("timings", {})
 
 
+@dataclass
+class PoseAnswer:
+    """One ``POST /pose`` answer: the pose (p_camera = R p_target + t, metres) and the rest of
+    the service's JSON (fitness, ambiguity, alternatives, the completion's summary...)."""
+
+    pose: Pose
+    answer: dict[str, Any]
+    latency_s: float = 0.0  # round trip, seconds, retries included
+
+    @property
+    def ambiguous(self) -> bool:
+        return bool(self.answer.get("ambiguous"))
+
+    @property
+    def alternatives(self) -> list[Pose]:
+        return [parse_pose(a["pose"]) for a in self.answer.get("alternatives", [])]
+
+    @property
+    def timings_ms(self) -> dict[str, float]:
+        return self.answer.get("timings", {})
+
+
 def read_file(path: str | Path, what: str = "input") -> bytes:
     """The bytes of a local file; ``InputError`` with a clear message if it cannot be read."""
     path = Path(path)
@@ -124,6 +148,16 @@ def _sparse_upload(sparse: Source) -> tuple[str, bytes]:
     if isinstance(sparse, bytes):
         return "sparse", sparse
     return Path(sparse).name, read_file(sparse, "sparse depth")
+
+
+def _frame_form(
+    gray: Source, sparse: Source, outlier_removal: bool, **numbers: float | None
+) -> tuple[dict, dict[str, str]]:
+    """The multipart files and fields of one frame (``POST /complete``, ``POST /pose``)."""
+    files = {"gray": _gray_upload(gray), "sparse": _sparse_upload(sparse)}
+    data = {k: repr(float(v)) for k, v in numbers.items() if v is not None}
+    data["outlier_removal"] = "true" if outlier_removal else "false"
+    return files, data
 
 
 def _error_of(response: httpx.Response) -> ServiceError:
@@ -222,10 +256,16 @@ class Client:
         16-bit PNG with ``depth_scale`` (metres per unit). Intrinsics in pixels; those not
         given are the model's, scaled to the image size.
         """
-        files = {"gray": _gray_upload(gray), "sparse": _sparse_upload(sparse)}
-        fields = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "depth_scale": depth_scale}
-        data = {k: repr(float(v)) for k, v in fields.items() if v is not None}
-        data["outlier_removal"] = "true" if outlier_removal else "false"
+        files, data = _frame_form(
+            gray,
+            sparse,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+            depth_scale=depth_scale,
+            outlier_removal=outlier_removal,
+        )
         start = time.perf_counter()
         response = self._request(
             "POST", "/complete", params={"format": "npz"}, files=files, data=data
@@ -242,6 +282,50 @@ class Client:
                 )
         except (ValueError, KeyError, OSError) as exc:
             raise ClientError(f"unexpected answer from {self.url}/complete: {exc}") from exc
+
+    def pose(
+        self,
+        gray: Source,
+        sparse: Source,
+        target: str,
+        *,
+        init: Pose | dict | None = None,
+        fx: float | None = None,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        depth_scale: float | None = None,
+        outlier_removal: bool = False,
+    ) -> PoseAnswer:
+        """The pose of the known ``target`` in one frame (``POST /pose``): from scratch, or
+        refined from ``init`` (a previous answer's ``pose``, a ``Pose`` or its JSON dict) to
+        track. Inputs as for ``complete``."""
+        files, data = _frame_form(
+            gray,
+            sparse,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+            depth_scale=depth_scale,
+            outlier_removal=outlier_removal,
+        )
+        data["target"] = target
+        if init is not None:
+            data["init"] = json.dumps(init.as_dict() if isinstance(init, Pose) else init)
+        start = time.perf_counter()
+        response = self._request("POST", "/pose", files=files, data=data)
+        latency = time.perf_counter() - start
+        try:
+            answer = response.json()
+            return PoseAnswer(parse_pose(answer["pose"]), answer, latency)
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ClientError(f"unexpected answer from {self.url}/pose: {exc}") from exc
+
+    def target_points(self, name: str) -> np.ndarray:
+        """(N, 3) samples of a known target's surface, its frame, metres (to draw it)."""
+        points = self._request("GET", f"/targets/{name}").json()["points"]
+        return np.asarray(points, np.float64).reshape(-1, 3)
 
     def health(self) -> dict[str, bool]:
         """{"live": ..., "ready": ...}, asked once (no retries); raises ServiceUnreachableError."""

@@ -2,6 +2,7 @@
 
     sdc-client infer GRAY SPARSE [--out DIR] [--fx F --fy F --cx C --cy C] [--depth-scale S]
     sdc-client batch DIR_OR_MANIFEST --out DIR [--concurrency N] [--split test]
+    sdc-client pose GRAY SPARSE --target NAME [--init POSE_JSON] [--out DIR] [intrinsics...]
     sdc-client health
     sdc-client model
 
@@ -27,7 +28,8 @@ from sdcnet.client.api import (
     read_file,
 )
 from sdcnet.client.batch import find_pairs, run_batch
-from sdcnet.client.outputs import local_image, summary, write_outputs
+from sdcnet.client.outputs import gray_for_display, local_image, summary, write_outputs
+from sdcnet.client.pose_outputs import pose_summary, read_init, write_pose_outputs
 
 EXIT_OK, EXIT_FAILED_PAIRS, EXIT_INPUT, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2, 3, 4
 
@@ -83,6 +85,16 @@ def parser() -> argparse.ArgumentParser:
     batch.add_argument("--concurrency", type=int, default=2, help="requests at once")
     batch.add_argument("--split", help="dataset split to run (train, val, test...)")
     batch.add_argument("--no-progress", action="store_true", help="no progress bar")
+    pose = sub.add_parser(
+        "pose", parents=[common, frame], help="a known target's pose in one frame; preview"
+    )
+    pose.add_argument("gray", type=Path, help="gray image: PNG, TIFF, JPEG or BMP")
+    pose.add_argument("sparse", type=Path, help=".npy (metres) or 16-bit PNG (--depth-scale)")
+    pose.add_argument("--target", required=True, help="a known target's name (sdc-client model)")
+    pose.add_argument(
+        "--init", help="to track: a previous pose as JSON, or a pose.json this command wrote"
+    )
+    pose.add_argument("--out", type=Path, default=Path("sdcnet-pose"), help="output folder")
     sub.add_parser("health", parents=[common], help="is the service live and ready?")
     sub.add_parser("model", parents=[common], help="the service's model metadata (JSON)")
     return p
@@ -123,6 +135,27 @@ def cmd_batch(client: Client, args: argparse.Namespace) -> int:
     return EXIT_FAILED_PAIRS if report.failed else EXIT_OK
 
 
+def cmd_pose(client: Client, args: argparse.Namespace) -> int:
+    gray = read_file(args.gray, "gray image")
+    sparse = read_file(args.sparse, "sparse depth")
+    try:
+        init = read_init(args.init) if args.init else None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"--init is neither pose JSON nor a readable pose.json: {exc}") from None
+    answer = client.pose(
+        gray,
+        sparse,
+        args.target,
+        init=init,
+        outlier_removal=args.outlier_removal,
+        **_frame_kwargs(args),
+    )
+    points = client.target_points(args.target)
+    written = write_pose_outputs(args.out, gray_for_display(local_image(gray)), answer, points)
+    print(pose_summary(answer, args.target, client.url, written))
+    return EXIT_OK
+
+
 def cmd_health(client: Client, args: argparse.Namespace) -> int:
     state = client.health()
     print(
@@ -137,7 +170,13 @@ def cmd_model(client: Client, args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"infer": cmd_infer, "batch": cmd_batch, "health": cmd_health, "model": cmd_model}
+COMMANDS = {
+    "infer": cmd_infer,
+    "batch": cmd_batch,
+    "pose": cmd_pose,
+    "health": cmd_health,
+    "model": cmd_model,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -108,3 +108,37 @@ def side_view(
     order = order[inside[order]]
     canvas[v[order], u[order]] = colours[order]
     return cv2.dilate(canvas, np.ones((2, 2), np.uint8))
+
+
+def draw_points(
+    image: np.ndarray,
+    points: np.ndarray,
+    intrinsics,
+    colour: tuple[int, int, int] | None = None,
+    radius: int = 0,
+) -> np.ndarray:
+    """Copy of BGR ``image`` with camera-frame ``points`` (N, 3, metres; e.g. a target's
+    surface samples at a pose) projected by ``intrinsics`` (``sdcnet.camera.Intrinsics``) as
+    dots of ``radius`` pixels: one ``colour``, or coloured by distance (turbo), the far ones
+    drawn first."""
+    front = points[points[:, 2] > 0]
+    layer = np.zeros_like(image)
+    if len(front):
+        u, v = intrinsics.project(front)
+        u, v = np.round(u).astype(int), np.round(v).astype(int)
+        h, w = image.shape[:2]
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        order = np.argsort(-front[:, 2])
+        order = order[inside[order]]
+        if colour is None:
+            colours = colorize_depth(front[:, 2:3].T.astype(np.float32))[0]
+        else:
+            colours = np.tile(np.array(colour, np.uint8), (len(front), 1))
+        layer[v[order], u[order]] = colours[order]
+    if radius > 0:
+        size = 2 * radius + 1
+        layer = cv2.dilate(layer, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+    drawn = layer.any(axis=2)
+    out = image.copy()
+    out[drawn] = layer[drawn]
+    return out

@@ -71,3 +71,13 @@ class PoseResponse(BaseModel):
     hypotheses: int = Field(description="poses refined to reach this answer")
     completion: FrameSummary = Field(description="the completed frame the pose comes from")
     timings: PoseTimings
+
+
+class TargetGeometry(BaseModel):
+    """``GET /targets/{name}``: what a client needs to draw the target at a pose."""
+
+    name: str
+    longest_m: float
+    points: list[list[float]] = Field(
+        description="N x 3 samples of its surface, target frame, metres (for drawing)"
+    )

@@ -4,11 +4,14 @@ import json
 import subprocess
 import sys
 
+import cv2
 import httpx
 import numpy as np
 import pytest
 from fixtures_runtime import SHIPPED_MODEL, png_bytes, running_service, sample_files
 
+from sdcnet.client.api import Client, ServiceError
+from sdcnet.client.cli import main as client_main
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.npyio import npy_bytes
 from sdcnet.rigid import Pose, parse_pose, pose_errors
@@ -125,3 +128,40 @@ def test_a_bad_targets_folder_stops_the_start_with_one_line(tmp_path):
     )
     assert done.returncode == 2
     assert "sdc-serve: targets folder" in done.stderr and "ghost.stl" in done.stderr
+
+
+def test_sdc_client_pose_prints_the_pose_and_draws_the_target(service, frames, tmp_path, capsys):
+    sample, truth = frames[0]
+    (tmp_path / "gray.png").write_bytes(png_bytes(sample.gray))
+    np.save(tmp_path / "sparse.npy", sample.sparse)
+    argv = ["pose", str(tmp_path / "gray.png"), str(tmp_path / "sparse.npy"), "--target", "probe"]
+    argv += ["--url", service, "--out", str(tmp_path / "out")]
+    assert client_main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "pose of probe" in printed and "from scratch" in printed
+    answer = json.loads((tmp_path / "out" / "pose.json").read_text())
+    assert pose_errors(parse_pose(answer["pose"]), truth)[0] < 2
+    preview = cv2.imread(str(tmp_path / "out" / "preview.png"))
+    assert preview.shape[0] == 320 and preview.shape[1] >= 2 * 320
+    # Drawn in colour over the gray tile: the target's samples at the pose.
+    drawn = preview[:, 324:644]
+    assert np.count_nonzero(np.ptp(drawn.astype(int), axis=2) > 30) > 200
+    # Tracking from the written answer.
+    argv += ["--init", str(tmp_path / "out" / "pose.json")]
+    assert client_main(argv) == 0
+    assert "tracked" in capsys.readouterr().out
+    assert client_main([*argv[:4], "nope", *argv[5:]]) == 3
+    assert "unknown_target" in capsys.readouterr().err
+
+
+def test_the_python_api_tracks_and_fetches_the_targets_samples(service, frames):
+    with Client(service) as client:
+        first = client.pose(frames[1][0].gray, frames[1][0].sparse, "probe")
+        again = client.pose(frames[1][0].gray, frames[1][0].sparse, "probe", init=first.pose)
+        points = client.target_points("probe")
+        with pytest.raises(ServiceError, match="unknown_target"):
+            client.target_points("nope")
+    assert not first.answer["tracked"] and again.answer["tracked"]
+    assert pose_errors(again.pose, frames[1][1])[0] < 2
+    assert points.shape[1] == 3 and 1000 < len(points) <= 5000
+    assert np.ptp(points, axis=0).max() == pytest.approx(9.0, rel=0.05)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
+import numpy as np
 from fastapi import APIRouter, Depends, File, Form, Request, UploadFile
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
@@ -12,8 +13,8 @@ from starlette.concurrency import run_in_threadpool
 from sdcnet.service.deps import EngineDep, SettingsDep, TargetsDep
 from sdcnet.service.errors import ERROR_RESPONSES
 from sdcnet.service.inference import CompletionRequest
-from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose
-from sdcnet.service.pose_schemas import PoseResponse
+from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose, find_target
+from sdcnet.service.pose_schemas import PoseResponse, TargetGeometry
 from sdcnet.service.routes.complete import DepthScale, FocalLength, PrincipalPoint, strict_form
 
 router = APIRouter(tags=["pose"])
@@ -95,4 +96,25 @@ async def pose(
     request.app.state.metrics.observe_phases(timer.seconds)
     return JSONResponse(
         answer.model_dump(), headers={"Server-Timing": timer.server_timing(POSE_PHASES)}
+    )
+
+
+#: Surface samples ``GET /targets/{name}`` sends: enough to draw the target, a few tens of kB.
+DRAWING_POINTS = 4000
+
+
+@router.get(
+    "/targets/{name}",
+    response_model=TargetGeometry,
+    responses={422: ERROR_RESPONSES[422]},
+)
+async def target_geometry(name: str, targets: TargetsDep) -> TargetGeometry:
+    """Samples of a known target's surface in its frame (metres), to draw it at a pose."""
+    target = find_target(targets, name)
+    points = target.model.render_points
+    step = max(1, len(points) // DRAWING_POINTS)
+    return TargetGeometry(
+        name=target.name,
+        longest_m=target.longest_m,
+        points=np.round(points[::step], 4).tolist(),
     )
