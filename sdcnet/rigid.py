@@ -58,6 +58,13 @@ class Pose:
         }
 
 
+def extrapolate(previous: Pose, latest: Pose) -> Pose:
+    """The next pose at constant velocity: the camera-frame motion from ``previous`` to
+    ``latest`` applied once more (frames equally spaced in time). A tracker's ``init``."""
+    step = latest.matrix() @ np.linalg.inv(previous.matrix())
+    return Pose.from_matrix(step @ latest.matrix())
+
+
 def quaternion_from_matrix(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix (numerically stable branch
     on the largest diagonal term)."""

@@ -12,6 +12,7 @@ from sdcnet.registration import TargetModel, TooFewPointsError, estimate_pose
 from sdcnet.rigid import (
     Pose,
     axis_angle,
+    extrapolate,
     matrix_from_quaternion,
     parse_pose,
     pose_errors,
@@ -141,3 +142,12 @@ def test_quaternions_round_trip_and_poses_parse_from_json():
 def test_a_malformed_pose_is_explained(value, message):
     with pytest.raises(ValueError, match=message):
         parse_pose(value)
+
+
+def test_constant_velocity_prediction_continues_a_steady_motion():
+    step = Pose(axis_angle([0.2, 1.0, 0.1], np.radians(1.5)), np.array([0.1, 0.0, -5.0]))
+    first = Pose(axis_angle([1, 0, 0], 0.3), np.array([1.0, 2.0, 200.0]))
+    second = Pose.from_matrix(step.matrix() @ first.matrix())
+    third = Pose.from_matrix(step.matrix() @ second.matrix())
+    predicted = extrapolate(first, second)
+    assert pose_errors(predicted, third)[0] < 1e-5 and pose_errors(predicted, third)[1] < 1e-9

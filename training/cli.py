@@ -9,12 +9,14 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
+import cv2
+
 from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.metrics import markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
-from sdcnet.training.data.generate import GenerateConfig, generate
+from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
 from sdcnet.training.evaluate import (
     ClassicalFill,
     evaluate_records,
@@ -25,6 +27,7 @@ from sdcnet.training.evaluate import (
 from sdcnet.training.model.sdcnet import VARIANTS
 from sdcnet.training.real import evaluate_per_model, gallery
 from sdcnet.training.train import PRESETS, TrainConfig, Trainer, config_from_preset
+from sdcnet.visualize import montage
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -249,6 +252,26 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--out", default="docs/real", help="markdown table, JSON and gallery.png")
     r.set_defaults(func=cmd_real)
 
+    q = sub.add_parser(
+        "pose",
+        help="pose of known targets: single frames from scratch and tracked sequences, from "
+        "the completed cloud, the classical fill's and the raw returns",
+    )
+    q.add_argument("--onnx", default="models/sdcnet.onnx", help="the model that completes")
+    q.add_argument("--threads", type=int, default=2, help="onnxruntime threads")
+    q.add_argument("--meshes", default="../shared/real-meshes", help="real meshes (manifest)")
+    q.add_argument("--dataset", default="data/paper", help="whose split's models to use")
+    q.add_argument("--split", default="test")
+    q.add_argument("--limit", type=int, default=18, help="models of the split, evenly spread")
+    q.add_argument("--views", type=int, default=4, help="single frames per model")
+    q.add_argument("--seed", type=int, default=0, help="of the real meshes' frames")
+    q.add_argument("--sequences", nargs="*", default=[], help="folders made by `sdc-data sequence`")
+    q.add_argument("--gallery", type=int, default=5, help="worst real frames in failures.png")
+    q.add_argument(
+        "--out", default="docs/pose", help="pose_eval.md, pose_eval.json and failures.png"
+    )
+    q.set_defaults(func=cmd_pose)
+
     s = sub.add_parser("ship", help="copy a checkpoint without the optimiser state (to commit)")
     s.add_argument("--checkpoint", required=True)
     s.add_argument("--out", required=True)
@@ -262,6 +285,65 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("--out", required=True)
     c.set_defaults(func=cmd_card)
     return p
+
+
+def cmd_pose(args: argparse.Namespace) -> int:
+    """Pose from scratch on single frames and tracked over sequences, three clouds."""
+    from sdcnet.runtime import OnnxModel
+    from sdcnet.targets import load_target
+    from sdcnet.training import pose_eval
+
+    onnx = OnnxModel(args.onnx, threads=args.threads)
+    methods = {
+        "completed": (onnx.run, onnx.stride),
+        "classical fill": (torch_model_fn(ClassicalFill()), 64),
+    }
+    clouds = [*methods, pose_eval.RAW]
+    entries = read_mesh_folder(args.meshes)
+    real_config = GenerateConfig(models=0, views=args.views, seed=args.seed, meshes=entries)
+    real = {k: (build_model(real_config, k), load_target(entry)) for k, entry in enumerate(entries)}
+    stores = [SampleStore(path) for path in args.sequences]
+    ids = set(pose_eval.split_ids(args.dataset, args.split, args.limit))
+    ids |= {r["model"] for store in stores for r in store.records if r["model"] < 1000}
+    test_config, procedural = pose_eval.procedural_models(args.dataset, sorted(ids))
+    single_ids = pose_eval.split_ids(args.dataset, args.split, args.limit)
+    targets = {t.name: t for _, t in [*real.values(), *procedural.values()]}
+    results = {
+        f"Real spacecraft, single frames from scratch ({args.views} views each)": (
+            pose_eval.evaluate_frames(
+                pose_eval.single_frames(real_config, real, args.views, "real"), methods
+            )
+        ),
+        f"Test split ({len(single_ids)} models), single frames from scratch ({args.views} "
+        "views each)": pose_eval.evaluate_frames(
+            pose_eval.single_frames(
+                test_config, {m: procedural[m] for m in single_ids}, args.views, args.split
+            ),
+            methods,
+        ),
+    }
+    for path, store in zip(args.sequences, stores, strict=True):
+        names = sorted({r["model_name"] for r in store.records})
+        results[f"Sequences {Path(path).name} ({len(names)} spacecraft), tracked at 10 Hz"] = (
+            pose_eval.evaluate_sequences(store, targets, methods)
+        )
+    text, data = pose_eval.report(results, clouds)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "pose_eval.md").write_text(text + "\n")
+    (out / "pose_eval.json").write_text(json.dumps(data, indent=1))
+    print(text)
+    # The failures of the completed cloud on the real spacecraft, from scratch, in pictures.
+    real_results = next(iter(results.values()))
+    picks = []
+    for result in pose_eval.pick_failures(real_results, "completed", args.gallery):
+        model_id, view = (int(part[1:]) for part in result.frame.split("_"))
+        model, target = real[model_id]
+        sample = pose_eval.with_pose(make_sample(real_config, model, model_id, view, "real"), model)
+        picks.append((result, target, sample))
+    rows = pose_eval.gallery_rows(picks, onnx.run, onnx.stride)
+    print(cv2.imwrite(str(out / "failures.png"), montage(rows, tile=256)) and out / "failures.png")
+    return 0
 
 
 def cmd_ship(args: argparse.Namespace) -> int:

@@ -1,0 +1,363 @@
+"""Pose evaluation (``sdc-train pose``): single frames from scratch and sequences tracked at
+10 Hz, from three clouds, so that the table shows what completion buys.
+
+The clouds of a frame (camera frame, metres), each registered by ``sdcnet.registration``
+with the frame's LIDAR returns as the final refinement (the service's own path):
+
+- ``completed``: the model's completed depth (ONNX, ``sdcnet.pipeline.complete``);
+- ``classical fill``: the morphological fill's (``ClassicalFill``) depth;
+- ``raw returns``: the LIDAR returns alone.
+
+Tracking: the first frame of a sequence from scratch, every next one from the constant-velocity
+prediction of the method's own last two answers (``sdcnet.rigid.extrapolate``).
+Errors: rotation (degrees), translation (metres, and per cent of the range); success: within
+2 degrees and 0.2 m. Times: registration alone, and the cloud's (completion or fill) apart.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import defaultdict
+from collections.abc import Iterable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from sdcnet.camera import Intrinsics
+from sdcnet.dataset_format import Sample, SampleStore
+from sdcnet.pipeline import ModelFn, complete
+from sdcnet.pointcloud import back_project
+from sdcnet.registration import PoseEstimate, TooFewPointsError, estimate_pose
+from sdcnet.rigid import Pose, extrapolate, pose_errors
+from sdcnet.targets import Target, prepare_target
+from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+from sdcnet.training.data.spacecraft import SpacecraftModel
+from sdcnet.visualize import (
+    colorize_depth,
+    dilated_returns,
+    draw_points,
+    gray_bgr,
+    labelled,
+    object_crop,
+)
+
+SUCCESS_DEG, SUCCESS_M = 2.0, 0.2
+RAW = "raw returns"
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    spacecraft: str
+    cloud: str  # completed, classical fill, raw returns
+    mode: str  # scratch or tracking
+    frame: str  # sample id
+    trajectory: str  # of a sequence's frame, else ""
+    range_m: float
+    returns: int
+    rotation_deg: float  # NaN when no pose could be given (too few points)
+    translation_m: float
+    ambiguous: bool
+    among_answers: bool  # the truth is the answer or one of its alternatives (2 deg, 0.2 m)
+    registration_ms: float
+    cloud_ms: float
+
+    @property
+    def success(self) -> bool:
+        return self.rotation_deg <= SUCCESS_DEG and self.translation_m <= SUCCESS_M
+
+
+def truth_of(sample: Sample) -> Pose:
+    return Pose(np.array(sample.meta["pose"]["R"]), np.array(sample.meta["pose"]["t"]))
+
+
+def clouds(
+    sample: Sample, methods: dict[str, tuple[ModelFn, int]]
+) -> Iterator[tuple[str, np.ndarray, float]]:
+    """(name, cloud, milliseconds to make it) per method, then the raw returns."""
+    K = Intrinsics(**sample.meta["intrinsics"])
+    for name, (fn, stride) in methods.items():
+        start = time.perf_counter()
+        result = complete(fn, sample.gray, sample.sparse, stride=stride)
+        cloud = back_project(result.depth, result.mask, K)
+        yield name, cloud, (time.perf_counter() - start) * 1e3
+    yield RAW, back_project(sample.sparse, sample.sparse > 0, K), 0.0
+
+
+def _result(
+    target: Target,
+    sample: Sample,
+    cloud_name: str,
+    mode: str,
+    estimate: PoseEstimate | None,
+    ms: tuple[float, float],
+) -> FrameResult:
+    truth = truth_of(sample)
+    if estimate is None:
+        errors, ambiguous, among = (float("nan"), float("nan")), False, False
+    else:
+        errors = pose_errors(estimate.pose, truth)
+        ambiguous = estimate.ambiguous
+        among = any(
+            r <= SUCCESS_DEG and t <= SUCCESS_M
+            for r, t in (pose_errors(h.pose, truth) for h in estimate.alternatives)
+        ) or (errors[0] <= SUCCESS_DEG and errors[1] <= SUCCESS_M)
+    return FrameResult(
+        target.name,
+        cloud_name,
+        mode,
+        sample.meta["id"],
+        sample.meta.get("trajectory", ""),
+        float(np.linalg.norm(truth.t)),
+        int(sample.meta["returns"]),
+        errors[0],
+        errors[1],
+        ambiguous,
+        among,
+        ms[0],
+        ms[1],
+    )
+
+
+def _register(
+    target: Target, cloud: np.ndarray, returns: np.ndarray, init: Pose | None
+) -> tuple[PoseEstimate | None, float]:
+    start = time.perf_counter()
+    try:
+        estimate = estimate_pose(target.model, cloud, returns, init)
+    except TooFewPointsError:
+        estimate = None
+    return estimate, (time.perf_counter() - start) * 1e3
+
+
+def evaluate_frames(
+    frames: Iterable[tuple[Target, Sample]], methods: dict[str, tuple[ModelFn, int]]
+) -> list[FrameResult]:
+    """Every frame from scratch, from every cloud."""
+    results = []
+    for target, sample in frames:
+        K = Intrinsics(**sample.meta["intrinsics"])
+        returns = back_project(sample.sparse, sample.sparse > 0, K)
+        for name, cloud, cloud_ms in clouds(sample, methods):
+            estimate, ms = _register(target, cloud, returns, None)
+            results.append(_result(target, sample, name, "scratch", estimate, (ms, cloud_ms)))
+    return results
+
+
+def evaluate_sequences(
+    store: SampleStore,
+    targets: dict[str, Target],
+    methods: dict[str, tuple[ModelFn, int]],
+    progress: bool = True,
+) -> list[FrameResult]:
+    """Every sequence of ``store`` tracked, from every cloud (see the module docstring)."""
+    sequences: dict[str, list[dict]] = defaultdict(list)
+    for record in store.records:
+        sequences[record["sequence"]].append(record)
+    results = []
+    bar = tqdm(total=len(store.records), desc="sequences", unit="frame", disable=not progress)
+    for records in sequences.values():
+        records.sort(key=lambda r: r["frame"])
+        target = targets[records[0]["model_name"]]
+        history: dict[str, list[Pose]] = defaultdict(list)
+        for record in records:
+            sample = store.load(record)
+            K = Intrinsics(**sample.meta["intrinsics"])
+            returns = back_project(sample.sparse, sample.sparse > 0, K)
+            for name, cloud, cloud_ms in clouds(sample, methods):
+                past = history[name]
+                init = extrapolate(*past[-2:]) if len(past) >= 2 else (past[-1] if past else None)
+                estimate, ms = _register(target, cloud, returns, init)
+                mode = "scratch" if init is None else "tracking"
+                results.append(_result(target, sample, name, mode, estimate, (ms, cloud_ms)))
+                if estimate is not None:
+                    past.append(estimate.pose)
+            bar.update()
+    bar.close()
+    return results
+
+
+def summary(results: list[FrameResult]) -> dict[str, float]:
+    """Means over frames; a frame without a pose counts as a failure, not in the errors."""
+    posed = [r for r in results if np.isfinite(r.rotation_deg)]
+    rot = np.array([r.rotation_deg for r in posed])
+    trans = np.array([r.translation_m for r in posed])
+    share = np.array([100 * r.translation_m / r.range_m for r in posed])
+    return {
+        "frames": len(results),
+        "no_pose": len(results) - len(posed),
+        "rotation_mean_deg": float(rot.mean()) if len(rot) else float("nan"),
+        "rotation_median_deg": float(np.median(rot)) if len(rot) else float("nan"),
+        "translation_mean_m": float(trans.mean()) if len(trans) else float("nan"),
+        "translation_median_m": float(np.median(trans)) if len(trans) else float("nan"),
+        "translation_mean_pct_range": float(share.mean()) if len(share) else float("nan"),
+        "success_pct": 100 * float(np.mean([r.success for r in results])),
+        "among_answers_pct": 100 * float(np.mean([r.among_answers for r in results])),
+        "ambiguous_pct": 100 * float(np.mean([r.ambiguous for r in results])),
+        "registration_p50_ms": float(np.median([r.registration_ms for r in results])),
+        "cloud_p50_ms": float(np.median([r.cloud_ms for r in results])),
+    }
+
+
+def table(rows: dict[str, dict[str, float]]) -> str:
+    """Markdown: one row per (what, cloud)."""
+    lines = [
+        "| | frames | rot. mean deg | rot. median | transl. mean m | median | % of range | "
+        "success (2 deg, 0.2 m) | truth among answers | ambiguous | registration p50 ms | "
+        "cloud p50 ms |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, s in rows.items():
+        lines.append(
+            f"| {name} | {s['frames']} | {s['rotation_mean_deg']:.2f} | "
+            f"{s['rotation_median_deg']:.2f} | {s['translation_mean_m']:.3f} | "
+            f"{s['translation_median_m']:.3f} | {s['translation_mean_pct_range']:.3f} | "
+            f"{s['success_pct']:.1f} % | {s['among_answers_pct']:.1f} % | "
+            f"{s['ambiguous_pct']:.1f} % | {s['registration_p50_ms']:.1f} | "
+            f"{s['cloud_p50_ms']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def grouped(results: list[FrameResult], key) -> dict[str, list[FrameResult]]:
+    groups: dict[str, list[FrameResult]] = defaultdict(list)
+    for r in results:
+        groups[key(r)].append(r)
+    return dict(sorted(groups.items()))
+
+
+def report(results: dict[str, list[FrameResult]], clouds_order: list[str]) -> tuple[str, dict]:
+    """Markdown and JSON of every evaluation (name -> frame results): per cloud (and mode:
+    a sequence's first frame is found from scratch), per trajectory, per spacecraft."""
+
+    def key(r: FrameResult) -> str:
+        return r.cloud if r.mode == "scratch" and not r.trajectory else f"{r.cloud}, {r.mode}"
+
+    def order(k: str) -> tuple:
+        cloud = k.split(",")[0]
+        return (clouds_order.index(cloud) if cloud in clouds_order else 99, k)
+
+    lines, data = [], {}
+    for name, frames in results.items():
+        rows = grouped(frames, key)
+        overall = {k: summary(rows[k]) for k in sorted(rows, key=order)}
+        data[name] = {"overall": overall}
+        lines += [f"### {name}", "", table(overall), ""]
+        tracked = [r for r in frames if r.mode == "tracking"]
+        if tracked:
+            per_trajectory = {
+                f"{trajectory}, {cloud}": summary(rs)
+                for trajectory, runs in grouped(tracked, lambda r: r.trajectory).items()
+                for cloud, rs in sorted(
+                    grouped(runs, lambda r: r.cloud).items(), key=lambda i: order(i[0])
+                )
+            }
+            data[name]["per_trajectory"] = per_trajectory
+            lines += [f"#### {name}: tracking per trajectory", "", table(per_trajectory), ""]
+        per_craft = {
+            f"{craft}, {k}": summary(rs)
+            for craft, craft_frames in grouped(frames, lambda r: r.spacecraft).items()
+            for k, rs in sorted(grouped(craft_frames, key).items(), key=lambda i: order(i[0]))
+        }
+        data[name]["per_spacecraft"] = per_craft
+        data[name]["frames"] = [asdict(r) for r in frames]
+        lines += [f"#### {name}: per spacecraft", "", table(per_craft), ""]
+    return "\n".join(lines), data
+
+
+def with_pose(sample: Sample, model: SpacecraftModel) -> Sample:
+    """``sample`` (from ``make_sample``) with its true pose in the target's frame in meta."""
+    R, t = model.file_frame_pose(
+        np.array(sample.meta["rotation"]), np.array(sample.meta["translation_m"])
+    )
+    sample.meta["pose"] = {"R": R.tolist(), "t": t.tolist()}
+    return sample
+
+
+def single_frames(
+    config: GenerateConfig,
+    models: dict[int, tuple[SpacecraftModel, Target]],
+    views: int,
+    split: str,
+) -> Iterator[tuple[Target, Sample]]:
+    """``views`` frames of each model, as the generator draws them (the same samples as a
+    dataset made with ``config``), with their true poses."""
+    for model_id, (model, target) in models.items():
+        for view in range(views):
+            yield target, with_pose(make_sample(config, model, model_id, view, split), model)
+
+
+def procedural_models(
+    dataset: Path, ids: Iterable[int]
+) -> tuple[GenerateConfig, dict[int, tuple[SpacecraftModel, Target]]]:
+    """A dataset's procedural models ``ids``, rebuilt from its seed, and their targets (their
+    centred frame is their own)."""
+    info = json.loads((Path(dataset) / "dataset.json").read_text())
+    config = GenerateConfig(models=info["models"], seed=info["seed"])
+    models = {}
+    for model_id in ids:
+        model = build_model(config, model_id)
+        models[model_id] = (
+            model,
+            prepare_target(model.name, model.mesh.vertices, model.mesh.faces),
+        )
+    return config, models
+
+
+def split_ids(dataset: Path, split: str, limit: int) -> list[int]:
+    """Up to ``limit`` procedural model ids of ``split``, evenly spread."""
+    info = json.loads((Path(dataset) / "dataset.json").read_text())
+    ids = sorted(
+        int(m) for m, s in info["model_split"].items() if s == split and int(m) < info["models"]
+    )
+    return ids[:: max(1, len(ids) // limit)][:limit] if limit else ids
+
+
+def gallery_rows(
+    picks: list[tuple[FrameResult, Target, Sample]], fn: ModelFn, stride: int
+) -> list[list[np.ndarray]]:
+    """One row per pick: gray | LIDAR returns | completed depth | the target drawn at the
+    estimated pose | ... at the true pose; zoomed on the spacecraft."""
+    rows = []
+    for result, target, sample in picks:
+        K = Intrinsics(**sample.meta["intrinsics"])
+        completion = complete(fn, sample.gray, sample.sparse, stride=stride)
+        returns = back_project(sample.sparse, sample.sparse > 0, K)
+        estimate = estimate_pose(
+            target.model, back_project(completion.depth, completion.mask, K), returns
+        )
+        window = object_crop(sample.mask | completion.mask)
+        scale = max(1, round((window[0].stop - window[0].start) / 256 / 2))
+        base = gray_bgr(sample.gray)
+        points = target.model.render_points
+        rotation_deg, translation_m = pose_errors(estimate.pose, truth_of(sample))
+        flag = ", ambiguous" if estimate.ambiguous else ""
+        rows.append(
+            [
+                labelled(base[window], f"{target.name} {result.range_m:.0f} m"),
+                labelled(
+                    dilated_returns(sample.sparse, 4)[window], f"{sample.meta['returns']} returns"
+                ),
+                labelled(colorize_depth(completion.depth)[window], "completed depth"),
+                labelled(
+                    draw_points(base, estimate.pose.apply(points), K, radius=scale)[window],
+                    f"estimate: {rotation_deg:.1f} deg, {translation_m:.2f} m{flag}",
+                ),
+                labelled(
+                    draw_points(base, truth_of(sample).apply(points), K, radius=scale)[window],
+                    "truth",
+                ),
+            ]
+        )
+    return rows
+
+
+def pick_failures(results: list[FrameResult], cloud: str, count: int) -> list[FrameResult]:
+    """The ``count`` worst frames of ``cloud`` by rotation error, then its best frame at the
+    longest range for contrast."""
+    own = [r for r in results if r.cloud == cloud and np.isfinite(r.rotation_deg)]
+    worst = sorted(own, key=lambda r: -r.rotation_deg)[:count]
+    good = [r for r in own if r.success and r not in worst]
+    return worst + sorted(good, key=lambda r: -r.range_m)[:1]
