@@ -9,7 +9,8 @@ sequence of ``--frames`` frames at 10 Hz (``sdc-data sequence``'s, seed 0). For 
 back to back on one keep-alive connection: ``POST /complete`` (JSON answer), ``POST /pose``
 from scratch, and ``POST /pose`` tracking (``init``: the constant-velocity prediction of the
 previous two tracked answers, as ``sdc-train pose`` does; from the second frame on). Reports
-p50 / p95 round trip per kind, the service's own split (Server-Timing) and the targets
+p50 / p95 round trip per kind, the service's own split (Server-Timing, and the registration's
+CPU time, which a busy machine does not inflate) and the targets
 (``/pose`` p50 <= 150 ms from scratch, <= 100 ms tracking); the machine's load average is
 printed beside them, since the 2 cores may be shared. Writes docs/benchmarks/pose_latency.md
 and .json.
@@ -70,7 +71,10 @@ def measure(url: str, rendered: list) -> tuple[dict[str, list[tuple[float, dict]
             response = http.post(path, files=files, data=data)
             elapsed = (time.perf_counter() - start) * 1e3
             response.raise_for_status()
-            shots.setdefault(kind, []).append((elapsed, timings(response)))
+            split = timings(response)
+            if path == "/pose":
+                split["registration_cpu"] = response.json()["timings"]["registration_cpu_ms"]
+            shots.setdefault(kind, []).append((elapsed, split))
             return response
 
         for name, sample in rendered[:2]:  # warm-up

@@ -119,6 +119,7 @@ def pose_response(
         timings=PoseTimings(
             **{f"{p}_ms": round(seconds.get(p, 0.0) * 1e3, 3) for p in POSE_PHASES},
             search_ms=estimate.timings_ms.get("search_ms", 0.0),
+            registration_cpu_ms=estimate.timings_ms["cpu_ms"],
         ),
     )
 

@@ -35,6 +35,9 @@ class PoseTimings(BaseModel):
     cloud_ms: float = Field(description="back-projection of the completed depth and the returns")
     registration_ms: float = Field(description="the pose from the clouds, all of it")
     search_ms: float = Field(description="of which the global search (0 when tracking held)")
+    registration_cpu_ms: float = Field(
+        description="CPU time of the registration's thread (its cost on a busy machine)"
+    )
 
 
 class PoseResponse(BaseModel):

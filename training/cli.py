@@ -266,7 +266,12 @@ def parser() -> argparse.ArgumentParser:
     q.add_argument("--views", type=int, default=4, help="single frames per model")
     q.add_argument("--seed", type=int, default=0, help="of the real meshes' frames")
     q.add_argument("--sequences", nargs="*", default=[], help="folders made by `sdc-data sequence`")
-    q.add_argument("--gallery", type=int, default=5, help="worst real frames in failures.png")
+    q.add_argument(
+        "--gallery", type=int, default=5, help="worst real frames in failures*.png, per cloud"
+    )
+    q.add_argument(
+        "--redraw", action="store_true", help="only the pictures, from --out's pose_eval.json"
+    )
     q.add_argument(
         "--out", default="docs/pose", help="pose_eval.md, pose_eval.json and failures.png"
     )
@@ -288,7 +293,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 def cmd_pose(args: argparse.Namespace) -> int:
-    """Pose from scratch on single frames and tracked over sequences, three clouds."""
+    """Pose from scratch on single frames and tracked over sequences, three clouds; then the
+    worst real frames from scratch in pictures (``--redraw``: only those, from the report)."""
     from sdcnet.runtime import OnnxModel
     from sdcnet.targets import load_target
     from sdcnet.training import pose_eval
@@ -298,52 +304,75 @@ def cmd_pose(args: argparse.Namespace) -> int:
         "completed": (onnx.run, onnx.stride),
         "classical fill": (torch_model_fn(ClassicalFill()), 64),
     }
-    clouds = [*methods, pose_eval.RAW]
     entries = read_mesh_folder(args.meshes)
     real_config = GenerateConfig(models=0, views=args.views, seed=args.seed, meshes=entries)
     real = {k: (build_model(real_config, k), load_target(entry)) for k, entry in enumerate(entries)}
-    stores = [SampleStore(path) for path in args.sequences]
+    stores = {Path(path).name: SampleStore(path) for path in args.sequences}
+    out = Path(args.out)
+    if args.redraw:
+        results = pose_eval.read_report(out / "pose_eval.json")
+    else:
+        results = _pose_results(args, methods, real_config, real, stores)
+        text, data = pose_eval.report(results, [*methods, pose_eval.RAW])
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "pose_eval.md").write_text(text + "\n")
+        (out / "pose_eval.json").write_text(json.dumps(data, indent=1))
+        print(text)
+    # From scratch on the real spacecraft: single frames and the sequences' first frames.
+    real_names = {target.name for _, target in real.values()}
+    scratch = [
+        r
+        for frames in results.values()
+        for r in frames
+        if r.mode == "scratch" and r.spacecraft in real_names
+    ]
+
+    def load(result: pose_eval.FrameResult):
+        if result.trajectory:
+            store = next(
+                s for s in stores.values() if any(r["id"] == result.frame for r in s.records)
+            )
+            sample = store.load(next(r for r in store.records if r["id"] == result.frame))
+            return next(t for _, t in real.values() if t.name == result.spacecraft), sample
+        model_id, view = (int(part[1:]) for part in result.frame.split("_"))
+        model, target = real[model_id]
+        sample = make_sample(real_config, model, model_id, view, "real")
+        return target, pose_eval.with_pose(sample, model)
+
+    for cloud, name in (("completed", "failures.png"), (pose_eval.RAW, "failures_raw.png")):
+        picks = [(r, *load(r)) for r in pose_eval.pick_failures(scratch, cloud, args.gallery)]
+        rows = pose_eval.gallery_rows(picks, onnx.run, onnx.stride, cloud)
+        cv2.imwrite(str(out / name), montage(rows, tile=256))
+        print(out / name)
+    return 0
+
+
+def _pose_results(args, methods, real_config, real, stores) -> dict:
+    """Name of each evaluation -> its frame results (``cmd_pose``)."""
+    from sdcnet.training import pose_eval
+
     ids = set(pose_eval.split_ids(args.dataset, args.split, args.limit))
-    ids |= {r["model"] for store in stores for r in store.records if r["model"] < 1000}
+    ids |= {r["model"] for store in stores.values() for r in store.records if r["model"] < 1000}
     test_config, procedural = pose_eval.procedural_models(args.dataset, sorted(ids))
     single_ids = pose_eval.split_ids(args.dataset, args.split, args.limit)
     targets = {t.name: t for _, t in [*real.values(), *procedural.values()]}
+    real_frames = pose_eval.single_frames(real_config, real, args.views, "real")
+    test_frames = pose_eval.single_frames(
+        test_config, {m: procedural[m] for m in single_ids}, args.views, args.split
+    )
     results = {
         f"Real spacecraft, single frames from scratch ({args.views} views each)": (
-            pose_eval.evaluate_frames(
-                pose_eval.single_frames(real_config, real, args.views, "real"), methods
-            )
+            pose_eval.evaluate_frames(real_frames, methods)
         ),
-        f"Test split ({len(single_ids)} models), single frames from scratch ({args.views} "
-        "views each)": pose_eval.evaluate_frames(
-            pose_eval.single_frames(
-                test_config, {m: procedural[m] for m in single_ids}, args.views, args.split
-            ),
-            methods,
-        ),
+        f"Test split ({len(single_ids)} models), single frames from scratch "
+        f"({args.views} views each)": pose_eval.evaluate_frames(test_frames, methods),
     }
-    for path, store in zip(args.sequences, stores, strict=True):
-        names = sorted({r["model_name"] for r in store.records})
-        results[f"Sequences {Path(path).name} ({len(names)} spacecraft), tracked at 10 Hz"] = (
+    for name, store in stores.items():
+        count = len({r["model_name"] for r in store.records})
+        results[f"Sequences {name} ({count} spacecraft), tracked at 10 Hz"] = (
             pose_eval.evaluate_sequences(store, targets, methods)
         )
-    text, data = pose_eval.report(results, clouds)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "pose_eval.md").write_text(text + "\n")
-    (out / "pose_eval.json").write_text(json.dumps(data, indent=1))
-    print(text)
-    # The failures of the completed cloud on the real spacecraft, from scratch, in pictures.
-    real_results = next(iter(results.values()))
-    picks = []
-    for result in pose_eval.pick_failures(real_results, "completed", args.gallery):
-        model_id, view = (int(part[1:]) for part in result.frame.split("_"))
-        model, target = real[model_id]
-        sample = pose_eval.with_pose(make_sample(real_config, model, model_id, view, "real"), model)
-        picks.append((result, target, sample))
-    rows = pose_eval.gallery_rows(picks, onnx.run, onnx.stride)
-    print(cv2.imwrite(str(out / "failures.png"), montage(rows, tile=256)) and out / "failures.png")
-    return 0
+    return results
 
 
 def cmd_ship(args: argparse.Namespace) -> int:

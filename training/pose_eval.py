@@ -316,22 +316,22 @@ def split_ids(dataset: Path, split: str, limit: int) -> list[int]:
 
 
 def gallery_rows(
-    picks: list[tuple[FrameResult, Target, Sample]], fn: ModelFn, stride: int
+    picks: list[tuple[FrameResult, Target, Sample]], fn: ModelFn, stride: int, cloud: str
 ) -> list[list[np.ndarray]]:
     """One row per pick: gray | LIDAR returns | completed depth | the target drawn at the
-    estimated pose | ... at the true pose; zoomed on the spacecraft."""
+    pose estimated from ``cloud`` ("completed" by ``fn``, or the raw returns) | ... at the
+    true pose; zoomed on the spacecraft."""
     rows = []
     for result, target, sample in picks:
         K = Intrinsics(**sample.meta["intrinsics"])
         completion = complete(fn, sample.gray, sample.sparse, stride=stride)
         returns = back_project(sample.sparse, sample.sparse > 0, K)
-        estimate = estimate_pose(
-            target.model, back_project(completion.depth, completion.mask, K), returns
-        )
+        points = back_project(completion.depth, completion.mask, K) if cloud != RAW else returns
+        estimate = estimate_pose(target.model, points, returns)
         window = object_crop(sample.mask | completion.mask)
         scale = max(1, round((window[0].stop - window[0].start) / 256 / 2))
         base = gray_bgr(sample.gray)
-        points = target.model.render_points
+        drawn = target.model.render_points
         rotation_deg, translation_m = pose_errors(estimate.pose, truth_of(sample))
         flag = ", ambiguous" if estimate.ambiguous else ""
         rows.append(
@@ -342,16 +342,22 @@ def gallery_rows(
                 ),
                 labelled(colorize_depth(completion.depth)[window], "completed depth"),
                 labelled(
-                    draw_points(base, estimate.pose.apply(points), K, radius=scale)[window],
-                    f"estimate: {rotation_deg:.1f} deg, {translation_m:.2f} m{flag}",
+                    draw_points(base, estimate.pose.apply(drawn), K, radius=scale)[window],
+                    f"{cloud}: {rotation_deg:.1f} deg, {translation_m:.2f} m{flag}",
                 ),
                 labelled(
-                    draw_points(base, truth_of(sample).apply(points), K, radius=scale)[window],
+                    draw_points(base, truth_of(sample).apply(drawn), K, radius=scale)[window],
                     "truth",
                 ),
             ]
         )
     return rows
+
+
+def read_report(path: Path) -> dict[str, list[FrameResult]]:
+    """The frame results of a ``report`` JSON, by evaluation name."""
+    data = json.loads(Path(path).read_text())
+    return {name: [FrameResult(**f) for f in v["frames"]] for name, v in data.items()}
 
 
 def pick_failures(results: list[FrameResult], cloud: str, count: int) -> list[FrameResult]:
