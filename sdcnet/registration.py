@@ -78,6 +78,7 @@ class RegistrationConfig:
     max_candidates: int = 6  # the answer and its alternatives, at most
     tracking_min_consistency: float = 0.5  # below it, tracking falls back to the search
     min_points: int = 12  # fewer observed points than this: no pose
+    max_span_of_longest: float = 20.0  # a cloud wider than this (x L): no pose
     returns_max_distance_m: float = 0.5  # correspondence gate of the returns' refinement
     returns_ambiguity_ratio: float = 1.25  # alternatives whose returns fit this close
     returns_voxel_of_longest: float = 1 / 200
@@ -139,14 +140,17 @@ class DistanceField:
         """From surface samples (N, 3), on cells of ``cell`` metres. Only cells within the
         truncation of a sample's cell are searched (a nearest-neighbour search far from the
         surface is slow, and its answer would be truncated anyway)."""
-        truncation = 3 * cell
-        origin = surface.min(axis=0) - 4 * cell
-        shape = tuple(np.ceil((surface.max(axis=0) + 4 * cell - origin) / cell).astype(int))
+        reach = 6  # cells: truncation, and how far from the surface distances are searched
+        truncation = reach * cell
+        origin = surface.min(axis=0) - (reach + 1) * cell
+        shape = tuple(
+            np.ceil((surface.max(axis=0) + (reach + 1) * cell - origin) / cell).astype(int)
+        )
         near = np.zeros(shape, bool)
         near[tuple(np.floor((surface - origin) / cell).astype(int).T)] = True
-        for axis in range(3):  # grow by 3 cells along each axis: a 7 x 7 x 7 box
+        for axis in range(3):  # grow by `reach` cells along each axis
             grown = near.copy()
-            for shift in (1, 2, 3):
+            for shift in range(1, reach + 1):
                 grown[(slice(None),) * axis + (slice(shift, None),)] |= near[
                     (slice(None),) * axis + (slice(None, -shift),)
                 ]
@@ -160,6 +164,10 @@ class DistanceField:
         _, squared = tree.batch_nearest_neighbor_search(centres)
         values[near] = np.minimum(np.sqrt(squared), truncation)
         return cls(origin, cell, values, truncation)
+
+    def near(self, points: np.ndarray) -> np.ndarray:
+        """Whether target-frame ``points`` (N, 3) lie within the truncation of the surface."""
+        return self.at_cells((points - self.origin) / self.cell) < self.truncation
 
     def at_cells(self, cells: np.ndarray) -> np.ndarray:
         """Distances at grid coordinates (..., 3) (target-frame position minus ``origin``,
@@ -343,8 +351,13 @@ class PoseEstimate:
         return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance[3:, 3:])[-1], 0)))
 
 
-class TooFewPointsError(ValueError):
-    """The cloud holds too few points to register."""
+class UnusableCloudError(ValueError):
+    """The cloud cannot be registered: ``code`` "too_few_points", "too_large" (it spans far
+    more than the target: wrong intrinsics, or not this target) or "no_pose" (diverged)."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code
 
 
 @dataclass(frozen=True)
@@ -391,9 +404,11 @@ def _observe(cloud: np.ndarray, model: TargetModel) -> _Observed:
     # order: an even thinning of the image) still fills every voxel of L / 32.
     step = max(1, len(cloud) // config.max_cloud_points)
     points = np.asarray(cloud[::step], np.float64)
-    small, _ = small_gicp.preprocess_points(
-        points, downsampling_resolution=L * config.voxel_of_longest, num_neighbors=10
-    )
+    # Voxels of L / 32, or coarser when the cloud spans more than the target (a cloud that
+    # is not of this target, or wrong intrinsics): at most ~48 across, so the cost stays bound.
+    span = float(np.max(np.ptp(points, axis=0)))
+    voxel = max(L * config.voxel_of_longest, span / 48)
+    small, _ = small_gicp.preprocess_points(points, downsampling_resolution=voxel, num_neighbors=10)
     kept = np.asarray(small.points())[:, :3]
     basis = _basis(centroid / np.linalg.norm(centroid))
     cell = L * config.grid_cell_of_longest
@@ -541,13 +556,24 @@ def _gicp(
     return Pose.from_matrix(np.linalg.inv(T)), result
 
 
+def _near_points(model: TargetModel, observed: _Observed, pose: Pose) -> small_gicp.PointCloud:
+    """The observed cloud, or only its points near the target at ``pose`` (with their
+    covariances) when many are far: a k-d tree search far from the target is slow."""
+    near = model.field.near(pose.inverse().apply(observed.points))
+    if near.mean() > 0.8 or np.count_nonzero(near) < model.config.min_points:
+        return observed.cloud
+    cloud = small_gicp.PointCloud(observed.points[near])
+    small_gicp.estimate_covariances(cloud, num_neighbors=10)
+    return cloud
+
+
 def _refine_dense(model: TargetModel, observed: _Observed, start: Pose, fine: bool) -> Hypothesis:
     """GICP of the downsampled cloud from ``start``: coarsely (a wide correspondence gate,
     few iterations) or finely (a gate of a few voxels), then scored."""
     config = model.config
     if fine:
         gate, iterations = 3 * model.longest_m * config.voxel_of_longest, config.fine_iterations
-        source = observed.cloud
+        source = _near_points(model, observed, start)
     else:
         gate, iterations = 0.1 * model.longest_m, config.coarse_iterations
         source = observed.coarse
@@ -581,13 +607,17 @@ def _covariance(result: small_gicp.RegistrationResult, pose: Pose) -> np.ndarray
 def surface_distances(model: TargetModel, points: np.ndarray, pose: Pose) -> np.ndarray:
     """Distances (metres) of camera-frame ``points`` to the target's surface at ``pose``:
     along the normal of the nearest target sample (so the samples' spacing does not count),
-    or to the sample itself when the point lies beyond it across the surface (off an edge)."""
+    or to the sample itself when the point lies beyond it across the surface (off an edge);
+    the distance field's truncation (L / 8) for points beyond it."""
     local = pose.inverse().apply(points)
-    index, squared = model.tree.batch_nearest_neighbor_search(local)
-    offset = local - model.points[index]
+    distances = np.full(len(local), model.field.truncation)  # far: at least this
+    near = model.field.near(local)  # (a nearest-neighbour search far away is slow)
+    index, squared = model.tree.batch_nearest_neighbor_search(local[near])
+    offset = local[near] - model.points[index]
     along = np.abs(np.einsum("ij,ij->i", offset, model.normals[index]))
     across = np.maximum(squared - along**2, 0)
-    return np.where(across <= (2 * model.spacing_m) ** 2, along, np.sqrt(squared))
+    distances[near] = np.where(across <= (2 * model.spacing_m) ** 2, along, np.sqrt(squared))
+    return distances
 
 
 def _distances(model: TargetModel, points: np.ndarray, pose: Pose, gate: float):
@@ -641,7 +671,15 @@ def _refine_on_returns(
         num_neighbors=6,
     )
     gate = config.returns_max_distance_m
+    thinned = np.asarray(source.points())[:, :3]
     for h in candidates:
+        # Only the returns near the target at this pose: far ones (another object, or a wrong
+        # candidate) cannot match, and the k-d tree is slow to say so.
+        near = model.field.near(h.pose.inverse().apply(thinned))
+        if np.count_nonzero(near) < config.min_points:
+            h.returns_error_m = float(gate / 3)
+            continue
+        source = small_gicp.PointCloud(thinned[near])
         pose, _ = _gicp(model, source, h.pose, (gate,), config.fine_iterations, kind="PLANE_ICP")
         h.pose, h.result = _gicp(
             model,
@@ -730,6 +768,12 @@ def _returns_rmse(model: TargetModel, returns: np.ndarray, best: Hypothesis) -> 
     return _distances(model, returns, best.pose, model.config.returns_max_distance_m / 3)[1]
 
 
+def _finite(points: np.ndarray) -> np.ndarray:
+    """The rows of (N, 3) ``points`` that are finite, float64."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    return points[np.isfinite(points).all(axis=1)]
+
+
 def estimate_pose(
     model: TargetModel,
     cloud: np.ndarray,
@@ -739,23 +783,35 @@ def estimate_pose(
     """The target's pose from ``cloud`` (N, 3) camera-frame points, metres (the completed
     cloud, or any cloud of the target's visible side), refined on ``returns`` (M, 3) (the
     LIDAR's own points) when given; from ``init`` when given (tracking), else from scratch.
-    Raises ``TooFewPointsError`` when the cloud is too small to register."""
+    Points that are not finite are left out. Raises ``UnusableCloudError`` when the cloud is
+    too small, or too large, to register."""
     config = model.config
     timings: dict[str, float] = {}
     started, cpu_started = time.perf_counter(), time.thread_time()
+    cloud = _finite(cloud)
     if len(cloud) < config.min_points:
-        raise TooFewPointsError(
-            f"{len(cloud)} points: at least {config.min_points} are needed for a pose"
+        raise UnusableCloudError(
+            "too_few_points",
+            f"{len(cloud)} points: at least {config.min_points} are needed for a pose",
+        )
+    span = float(np.max(np.ptp(cloud, axis=0)))
+    if span > config.max_span_of_longest * model.longest_m:
+        raise UnusableCloudError(
+            "too_large",
+            f"the cloud spans {span:.3g} m, more than {config.max_span_of_longest:g} times the "
+            f"target's {model.longest_m:.3g} m (wrong intrinsics, or not this target?)",
         )
     observed = _observe(cloud, model)
     if observed.cloud.size() < config.min_points:
-        raise TooFewPointsError(
+        raise UnusableCloudError(
+            "too_few_points",
             f"{len(cloud)} points fill only {observed.cloud.size()} voxels of "
             f"{model.longest_m * config.voxel_of_longest:.3f} m: at least {config.min_points} "
-            "are needed for a pose"
+            "are needed for a pose",
         )
     if returns is not None:
-        returns = np.asarray(returns, np.float64) if len(returns) >= config.min_points else None
+        returns = _finite(returns)
+        returns = returns if len(returns) >= config.min_points else None
     timings["prepare_ms"] = (time.perf_counter() - started) * 1e3
     refined = tracked = None
     if init is not None:  # the fine gate (3 voxels, ~L / 10) covers a tracker's error
@@ -775,6 +831,8 @@ def estimate_pose(
         choice, hypotheses = _choose_searched(model, searched, returns), len(searched)
     timings["choice_ms"] = (time.perf_counter() - mark) * 1e3
     best = choice.best
+    if not np.all(np.isfinite(best.pose.matrix())):
+        raise UnusableCloudError("no_pose", "the registration diverged on this cloud")
     voxel = model.longest_m * config.voxel_of_longest
     fitness, rmse = _distances(model, observed.points, best.pose, 3 * voxel)
     timings["total_ms"] = (time.perf_counter() - started) * 1e3

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sdcnet.pointcloud import back_project
-from sdcnet.registration import PoseEstimate, TooFewPointsError, estimate_pose
+from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, parse_pose
 from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import (
@@ -60,11 +60,12 @@ class PoseRequest:
 
 
 def find_target(targets: dict[str, Target], name: str) -> Target:
-    """The named target, or 422 ``unknown_target`` listing the known ones."""
+    """The named target, or 404 ``unknown_target`` (no such target here) listing the known
+    ones."""
     if name in targets:
         return targets[name]
     known = ", ".join(sorted(targets)) or "none (start sdc-serve with --targets DIR)"
-    raise ApiError(422, "unknown_target", f"unknown target {name!r}; known targets: {known}")
+    raise ApiError(404, "unknown_target", f"unknown target {name!r}; known targets: {known}")
 
 
 def read_init(text: str | None) -> Pose | None:
@@ -98,8 +99,10 @@ def pose_response(
         pose=_pose_value(estimate.pose),
         tracked=estimate.tracked,
         fitness=estimate.fitness,
-        rmse_m=estimate.rmse_m,
-        returns_rmse_m=estimate.returns_rmse_m,
+        rmse_m=_finite(estimate.rmse_m),
+        returns_rmse_m=None
+        if estimate.returns_rmse_m is None
+        else _finite(estimate.returns_rmse_m),
         consistency=estimate.consistency,
         converged=estimate.converged,
         covariance=covariance.tolist() if finite else None,
@@ -141,11 +144,9 @@ def answer_pose(
     with timer("registration"):
         try:
             estimate = estimate_pose(target.model, points, returns, init)
-        except TooFewPointsError as exc:
+        except UnusableCloudError as exc:
             raise ApiError(
-                422,
-                "too_few_points",
-                f"the completed cloud is too small to register {target.name}: {exc}",
+                422, exc.code, f"the completed cloud cannot be registered to {target.name}: {exc}"
             ) from exc
     completion = FrameSummary(**frame_summary(engine, frame, len(points), removed))
     return pose_response(target, estimate, completion, timer), timer

@@ -51,7 +51,9 @@ class PoseResponse(BaseModel):
     fitness: float = Field(
         description="share of the completed cloud within the inlier distance of the target"
     )
-    rmse_m: float = Field(description="RMS distance of those inliers to the target, metres")
+    rmse_m: float | None = Field(
+        description="RMS distance of those inliers to the target, metres; null: no inlier"
+    )
     returns_rmse_m: float | None = Field(
         description="RMS distance of the LIDAR returns to the target (inliers), metres"
     )

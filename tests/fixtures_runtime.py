@@ -183,6 +183,18 @@ def _wait_ready(process: subprocess.Popen, log: Path, timeout_s: float = 90.0) -
 # -- fuzzing the API from its OpenAPI schema (tests/test_fuzz.py, benchmarks/fuzz.py) ------
 
 COMPLETE = "POST /complete"
+POSE = "POST /pose"
+FUZZ_TARGET = "box"  # the target fuzz_targets() writes
+
+
+def fuzz_targets(folder: Path) -> Path:
+    """A targets folder of one small box (``FUZZ_TARGET``, 2 m) for the fuzzed service."""
+    import trimesh
+
+    folder.mkdir(parents=True, exist_ok=True)
+    trimesh.creation.box((2.0, 1.0, 0.5)).export(folder / f"{FUZZ_TARGET}.stl")
+    (folder / "manifest.json").write_text(json.dumps([{"file": f"{FUZZ_TARGET}.stl"}]))
+    return folder
 
 
 @dataclass
@@ -227,8 +239,9 @@ def fuzz_frame(depth_scale: float | None) -> dict[str, bytes]:
 
 
 def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
-    """schemathesis ``before_call`` hook: a positive (schema-valid) ``POST /complete`` case is
-    sent with a real frame in place of its generated ``gray`` and ``sparse`` bytes.
+    """schemathesis ``before_call`` hook: a positive (schema-valid) ``POST /complete`` or
+    ``POST /pose`` case is sent with a real frame in place of its generated ``gray`` and
+    ``sparse`` bytes (and, for ``/pose``, the fuzzed service's target and a real pose).
 
     The schema can say that both are files, not that they are a decodable image and a depth
     map of the same size; without this, every "valid" case would be refused (rightly) and the
@@ -239,11 +252,21 @@ def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
     """
     meta = case.meta
     positive = meta is not None and meta.generation.mode.value == "positive"
-    if f"{case.method.upper()} {case.path}" != COMPLETE or not positive:
+    if f"{case.method.upper()} {case.path}" not in (COMPLETE, POSE) or not positive:
         return
     if not isinstance(case.body, dict):
         return
     fields = {k: v for k, v in case.body.items() if k not in ("gray", "sparse")}
+    if case.path == "/pose":
+        # A known target, an init that is a pose (when one is sent), the frame's own
+        # intrinsics and depths in metres: the schema cannot say that a focal length of
+        # 1e-300 px, or a depth scale of 1e-6 m per unit on depths of 100 m, turn the frame
+        # into a cloud light-years wide or millimetres small, which /pose refuses (422).
+        dropped = ("fx", "fy", "cx", "cy", "depth_scale")
+        fields = {k: v for k, v in fields.items() if k not in dropped}
+        fields["target"] = FUZZ_TARGET
+        if "init" in fields:
+            fields["init"] = json.dumps({"R": np.eye(3).tolist(), "t": [0.0, 0.0, 100.0]})
     frame = fuzz_frame(fields.get("depth_scale"))
     kwargs["files"] = {name: (f"{name}.bin", data) for name, data in frame.items()}
     kwargs["data"] = {k: v if isinstance(v, str) else json.dumps(v) for k, v in fields.items()}

@@ -8,7 +8,7 @@ import pytest
 import small_gicp
 import trimesh
 
-from sdcnet.registration import TargetModel, TooFewPointsError, estimate_pose
+from sdcnet.registration import TargetModel, UnusableCloudError, estimate_pose
 from sdcnet.rigid import (
     Pose,
     axis_angle,
@@ -103,10 +103,17 @@ def test_an_asymmetric_real_shape_has_no_symmetry(spacecraft):
     assert model.symmetries == []
 
 
-def test_too_few_points_is_an_error(spacecraft):
+def test_a_cloud_too_small_or_too_large_or_not_finite_is_an_error(spacecraft):
     _, model = spacecraft
-    with pytest.raises(TooFewPointsError, match="at least"):
+    with pytest.raises(UnusableCloudError, match="at least") as small:
         estimate_pose(model, np.array([[0.0, 0.0, 100.0]] * 5))
+    assert small.value.code == "too_few_points"
+    huge = np.random.default_rng(0).uniform(-1e6, 1e6, size=(500, 3))
+    with pytest.raises(UnusableCloudError, match="spans") as large:
+        estimate_pose(model, huge)
+    assert large.value.code == "too_large"
+    with pytest.raises(UnusableCloudError, match="at least"):  # infinite points are left out
+        estimate_pose(model, np.full((500, 3), np.inf))
 
 
 def test_quaternions_round_trip_and_poses_parse_from_json():

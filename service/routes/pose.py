@@ -16,8 +16,19 @@ from sdcnet.service.inference import CompletionRequest
 from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose, find_target
 from sdcnet.service.pose_schemas import PoseResponse, TargetGeometry
 from sdcnet.service.routes.complete import DepthScale, FocalLength, PrincipalPoint, strict_form
+from sdcnet.service.schemas import ErrorBody
 
 router = APIRouter(tags=["pose"])
+POSE_ERRORS: dict[int | str, dict] = {
+    **ERROR_RESPONSES,
+    404: {"model": ErrorBody, "description": "unknown_target: no target of that name here"},
+    422: {
+        **ERROR_RESPONSES[422],
+        "description": ERROR_RESPONSES[422]["description"] + "; invalid_init (init is not a "
+        "pose), too_few_points / too_large (the completed cloud is too small, or spans far "
+        "more than the target, to register)",
+    },
+}
 
 
 @router.post(
@@ -34,7 +45,7 @@ router = APIRouter(tags=["pose"])
                 }
             },
         },
-        **ERROR_RESPONSES,
+        **POSE_ERRORS,
     },
     dependencies=[Depends(strict_form)],
 )
@@ -106,7 +117,7 @@ DRAWING_POINTS = 4000
 @router.get(
     "/targets/{name}",
     response_model=TargetGeometry,
-    responses={422: ERROR_RESPONSES[422]},
+    responses={404: POSE_ERRORS[404]},
 )
 async def target_geometry(name: str, targets: TargetsDep) -> TargetGeometry:
     """Samples of a known target's surface in its frame (metres), to draw it at a pose."""
