@@ -30,7 +30,7 @@ from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
 from sdcnet.pipeline import ModelFn, complete
 from sdcnet.pointcloud import back_project
-from sdcnet.registration import PoseEstimate, TooFewPointsError, estimate_pose
+from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, extrapolate, pose_errors
 from sdcnet.targets import Target, prepare_target
 from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
@@ -127,7 +127,7 @@ def _register(
     start = time.perf_counter()
     try:
         estimate = estimate_pose(target.model, cloud, returns, init)
-    except TooFewPointsError:
+    except UnusableCloudError:
         estimate = None
     return estimate, (time.perf_counter() - start) * 1e3
 
