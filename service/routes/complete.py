@@ -61,6 +61,17 @@ PrincipalPoint = optional_number(f"pixels; {_DEFAULT_K}")
 #: Metres per unit of a 16-bit PNG sparse map, bounded so that every depth stays finite and
 #: non-zero in float32 (65535 units x 1000 m; 1 unit x 1 micrometre).
 DepthScale = optional_number("metres per unit of a 16-bit PNG sparse", ge=1e-6, le=1e3)
+GrayFile = Annotated[
+    UploadFile,
+    File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
+]
+SparseFile = Annotated[
+    UploadFile,
+    File(
+        description=".npy of float32/float64 metres (0 = no return), or a 16-bit PNG "
+        "with depth_scale"
+    ),
+]
 
 
 @router.post(
@@ -87,17 +98,8 @@ async def complete(
     request: Request,
     engine: EngineDep,
     settings: SettingsDep,
-    gray: Annotated[
-        UploadFile,
-        File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
-    ],
-    sparse: Annotated[
-        UploadFile,
-        File(
-            description=".npy of float32/float64 metres (0 = no return), or a 16-bit PNG "
-            "with depth_scale"
-        ),
-    ],
+    gray: GrayFile,
+    sparse: SparseFile,
     depth_scale: DepthScale = None,
     fx: FocalLength = None,
     fy: FocalLength = None,

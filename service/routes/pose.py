@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Depends, File, Form, Request, UploadFile
+from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
@@ -15,7 +15,14 @@ from sdcnet.service.errors import ERROR_RESPONSES
 from sdcnet.service.inference import CompletionRequest
 from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose, find_target
 from sdcnet.service.pose_schemas import PoseResponse, TargetGeometry
-from sdcnet.service.routes.complete import DepthScale, FocalLength, PrincipalPoint, strict_form
+from sdcnet.service.routes.complete import (
+    DepthScale,
+    FocalLength,
+    GrayFile,
+    PrincipalPoint,
+    SparseFile,
+    strict_form,
+)
 from sdcnet.service.schemas import ErrorBody
 
 router = APIRouter(tags=["pose"])
@@ -54,17 +61,8 @@ async def pose(
     engine: EngineDep,
     settings: SettingsDep,
     targets: TargetsDep,
-    gray: Annotated[
-        UploadFile,
-        File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
-    ],
-    sparse: Annotated[
-        UploadFile,
-        File(
-            description=".npy of float32/float64 metres (0 = no return), or a 16-bit PNG "
-            "with depth_scale"
-        ),
-    ],
+    gray: GrayFile,
+    sparse: SparseFile,
     target: Annotated[str, Form(description="a known target's name (GET /model lists them)")],
     init: Annotated[
         str | None,
