@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from sdcnet.returns import scatter_nearest
+
 ModelFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 #: Margin around the LIDAR returns' bounding box, as a fraction of the image width (a 1024 px
@@ -92,10 +94,7 @@ def resample_sparse(sparse: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     sy, sx = shape[0] / H, shape[1] / W
     r = np.clip(np.round((rows + 0.5) * sy - 0.5).astype(int), 0, shape[0] - 1)
     c = np.clip(np.round((cols + 0.5) * sx - 0.5).astype(int), 0, shape[1] - 1)
-    out = np.full(shape, np.inf, np.float32)
-    np.minimum.at(out, (r, c), sparse[rows, cols].astype(np.float32))
-    out[np.isinf(out)] = 0
-    return out
+    return scatter_nearest(r, c, sparse[rows, cols], shape)
 
 
 def _run_at_scale(

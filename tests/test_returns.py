@@ -1,0 +1,144 @@
+"""LIDAR returns as a list (sdcnet.returns) and the compact answer layouts (sdcnet.compact):
+exact round trips, the nearest-wins rule, and a clear error for every invalid list."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from fixtures_runtime import sample
+
+from sdcnet.compact import (
+    crop,
+    depth_from_fp16,
+    fp16_residuals,
+    pack_mask,
+    paste,
+    unpack_mask,
+)
+from sdcnet.pipeline import resample_sparse
+from sdcnet.returns import (
+    ReturnsError,
+    dense_from_returns,
+    parse_returns_csv,
+    read_returns_csv,
+    returns_csv,
+    returns_from_dense,
+)
+
+
+def test_dense_and_list_convert_exactly_both_ways():
+    sparse = sample(256).sparse
+    returns = returns_from_dense(sparse)
+    assert returns.dtype == np.float32 and returns.shape == (np.count_nonzero(sparse), 3)
+    np.testing.assert_array_equal(dense_from_returns(returns, sparse.shape), sparse)
+    # float64 maps convert to the float32 the service uses
+    np.testing.assert_array_equal(
+        dense_from_returns(returns_from_dense(sparse.astype(np.float64)), sparse.shape), sparse
+    )
+
+
+def test_the_nearest_return_wins_a_pixel_as_when_resampling():
+    returns = np.array([[3, 4, 120.0], [3, 4, 80.5], [0, 0, 90.0], [3, 4, 95.0]], np.float32)
+    dense = dense_from_returns(returns, (8, 8))
+    assert dense[3, 4] == np.float32(80.5) and dense[0, 0] == 90.0
+    assert np.count_nonzero(dense) == 2
+    # the same rule as sdcnet.pipeline.resample_sparse: two returns meeting on one pixel
+    fine = np.zeros((8, 8), np.float32)
+    fine[2, 2], fine[3, 3] = 100.0, 99.0
+    assert resample_sparse(fine, (4, 4))[1, 1] == np.float32(99.0)
+
+
+def test_csv_round_trips_the_same_float32_values(tmp_path):
+    returns = returns_from_dense(sample(256).sparse)
+    path = tmp_path / "returns.csv"
+    path.write_text(returns_csv(returns))
+    assert path.read_text().startswith("row,col,z_m\n")
+    np.testing.assert_array_equal(read_returns_csv(path), returns)
+    with_spaces = "\ufeffrow, col, z_m\n1, 2, 100.5\n\n3,4,7\n"  # BOM, spaces, a blank line
+    np.testing.assert_array_equal(
+        parse_returns_csv(with_spaces), np.array([[1, 2, 100.5], [3, 4, 7]], np.float32)
+    )
+
+
+@pytest.mark.parametrize(
+    ("returns", "code", "message"),
+    [
+        (np.zeros((4, 2), np.float32), "wrong_shape", "must be (N, 3)"),
+        (np.zeros((4, 3), np.int32), "wrong_dtype", "float32 or float64"),
+        (np.zeros((0, 3), np.float32), "no_returns", "no LIDAR return"),
+        (np.array([[1, 1, np.nan]], np.float32), "invalid_depth", "NaN or infinite"),
+        (np.array([[1, np.inf, 5]], np.float32), "invalid_depth", "NaN or infinite"),
+        (np.array([[1, 1, 0]], np.float32), "invalid_depth", "Z <= 0"),
+        (np.array([[1, 1, -3]], np.float32), "invalid_depth", "Z <= 0"),
+        (np.array([[1.5, 1, 3]], np.float32), "invalid_returns", "whole pixel indices"),
+        (np.array([[-1, 1, 3]], np.float32), "invalid_returns", "whole pixel indices"),
+        (np.array([[8, 1, 3]], np.float32), "invalid_returns", "outside the 8 x 8 frame"),
+        (np.array([[1, 8, 3]], np.float32), "invalid_returns", "outside the 8 x 8 frame"),
+        (np.ones((65, 3), np.float32), "invalid_returns", "at most one per pixel"),
+    ],
+)
+def test_invalid_returns_are_named(returns, code, message):
+    with pytest.raises(ReturnsError, match=re.escape(message)) as raised:
+        dense_from_returns(returns, (8, 8))
+    assert raised.value.code == code
+
+
+@pytest.mark.parametrize(
+    ("text", "code", "message"),
+    [
+        ("", "invalid_returns", "header row,col,z_m"),
+        ("r,c,z\n1,2,3\n", "invalid_returns", "header row,col,z_m"),
+        ("row,col,z_m\n", "no_returns", "no LIDAR return"),
+        ("row,col,z_m\n1,2\n", "wrong_shape", "must be (N, 3)"),
+        ("row,col,z_m\n1,2,x\n", "invalid_returns", "not 3 numbers"),
+        ("row,col,z_m\n1,2,3\n4,5\n", "invalid_returns", "not 3 numbers"),
+    ],
+)
+def test_malformed_csv_is_named(text, code, message):
+    with pytest.raises(ReturnsError, match=re.escape(message)) as raised:
+        parse_returns_csv(text)
+    assert raised.value.code == code
+
+
+def test_a_dense_map_with_bad_depths_is_refused():
+    sparse = np.zeros((4, 4), np.float32)
+    sparse[1, 1] = np.nan
+    with pytest.raises(ReturnsError, match="NaN"):
+        returns_from_dense(sparse)
+    sparse[1, 1] = -2
+    with pytest.raises(ReturnsError, match="negative"):
+        returns_from_dense(sparse)
+
+
+def test_region_and_bits_round_trip_exactly():
+    rng = np.random.default_rng(0)
+    depth = np.zeros((37, 53), np.float32)
+    depth[5:20, 9:40] = rng.uniform(50, 250, (15, 31)).astype(np.float32)
+    mask = depth > 0
+    window = crop(depth, 5, 9, 15, 31)
+    np.testing.assert_array_equal(paste(window, 5, 9, depth.shape), depth)
+    for shape in ((15, 31), (1, 1), (8, 8), (3, 5)):  # byte counts with and without padding
+        m = rng.random(shape) > 0.5
+        np.testing.assert_array_equal(unpack_mask(pack_mask(m), shape), m)
+    bits = pack_mask(crop(mask, 5, 9, 15, 31))
+    np.testing.assert_array_equal(paste(unpack_mask(bits, (15, 31)), 5, 9, mask.shape), mask)
+    with pytest.raises(ValueError, match="cannot hold"):
+        unpack_mask(bits[:-1], (15, 31))
+    with pytest.raises(ValueError, match="does not fit"):
+        paste(window, 30, 9, depth.shape)
+
+
+def test_fp16_depth_comes_back_within_8_mm_and_zero_stays_zero():
+    rng = np.random.default_rng(1)
+    depth = np.zeros((64, 64), np.float32)
+    depth[10:50, 10:50] = rng.uniform(180.0, 211.0, (40, 40)).astype(np.float32)  # 31 m deep
+    residuals, offset = fp16_residuals(depth)
+    assert residuals.dtype == np.float16 and offset == pytest.approx(depth[depth > 0].min())
+    back = depth_from_fp16(residuals, offset)
+    assert back.dtype == np.float32
+    np.testing.assert_array_equal(back == 0, depth == 0)
+    assert np.abs(back - depth).max() <= 0.008
+    empty, zero = fp16_residuals(np.zeros((4, 4), np.float32))
+    np.testing.assert_array_equal(depth_from_fp16(empty, zero), np.zeros((4, 4), np.float32))
