@@ -1,16 +1,18 @@
 """Python API of the sdcnet service, on httpx: ``Client(url).complete(gray, sparse)``.
 
 Needs numpy, OpenCV and httpx only (no torch, onnxruntime or FastAPI). Inputs may be arrays,
-file paths or raw file bytes; answers come back as numpy arrays (the service's npz format,
-which is exact and compact). Connection errors and 503 answers are retried with exponential
-backoff (503's Retry-After honoured); any other error answer raises ``ServiceError`` with the
-service's code and message.
+file paths or raw file bytes; the LIDAR returns may be a dense map or a list of returns. They
+travel compactly (``sdcnet.client.protocol``): the raw gray image and the returns as a list,
+over the service's Open Inference Protocol route, on one keep-alive connection; the answer
+comes back as the spacecraft's region and is rebuilt into full-frame numpy arrays, the same
+bit for bit as the service's full-frame answers. Connection errors and 503 answers are retried
+with exponential backoff (503's Retry-After honoured); any other error answer raises
+``ServiceError`` with the service's code and message.
 """
 
 from __future__ import annotations
 
 import io
-import json
 import os
 import random
 import time
@@ -22,7 +24,9 @@ import cv2
 import httpx
 import numpy as np
 
-from sdcnet.npyio import npy_bytes
+from sdcnet.client import protocol
+from sdcnet.pipeline import to_gray
+from sdcnet.returns import ReturnsError, check_returns, parse_returns_csv, returns_from_dense
 
 DEFAULT_URL = os.environ.get("SDCNET_URL", "http://127.0.0.1:8000")
 
@@ -98,38 +102,93 @@ def read_file(path: str | Path, what: str = "input") -> bytes:
         raise InputError(f"cannot read {what} file {path}: {exc.strerror or exc}") from None
 
 
-def _gray_upload(gray: Source) -> tuple[str, bytes]:
+NPY_MAGIC = b"\x93NUMPY"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def gray_array(gray: Source) -> np.ndarray:
+    """The gray image as uint8/uint16 (H, W): the array itself, or an image file (PNG, TIFF,
+    JPEG, BMP; path or bytes) decoded as the service decodes it, colour converted to gray."""
     if isinstance(gray, np.ndarray):
-        if gray.dtype not in (np.uint8, np.uint16) or gray.ndim not in (2, 3):
-            raise InputError(
-                f"gray array must be uint8 or uint16 (H, W), got {gray.dtype} {gray.shape}"
-            )
-        ok, png = cv2.imencode(".png", gray)
-        if not ok:
-            raise InputError(f"cannot encode the gray array {gray.shape} as PNG")
-        return "gray.png", png.tobytes()
-    if isinstance(gray, bytes):
-        return "gray", gray
-    return Path(gray).name, read_file(gray, "gray image")
+        image = gray
+    else:
+        data = gray if isinstance(gray, bytes) else read_file(gray, "gray image")
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise InputError("cannot decode the gray image (PNG, TIFF, JPEG or BMP)")
+    if image.dtype not in (np.uint8, np.uint16) or image.ndim not in (2, 3):
+        raise InputError(
+            f"gray must be an 8- or 16-bit image (H, W), got {image.dtype} {image.shape}"
+        )
+    return to_gray(image)
 
 
-def _sparse_upload(sparse: Source) -> tuple[str, bytes]:
-    if isinstance(sparse, np.ndarray):
-        if sparse.dtype not in (np.float32, np.float64) or sparse.ndim != 2:
-            raise InputError(
-                f"sparse array must be float32 or float64 (H, W) metres, got "
-                f"{sparse.dtype} {sparse.shape}"
-            )
-        return "sparse.npy", npy_bytes(sparse)
-    if isinstance(sparse, bytes):
-        return "sparse", sparse
-    return Path(sparse).name, read_file(sparse, "sparse depth")
+def _load_npy(data: bytes) -> np.ndarray:
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except (ValueError, EOFError, OSError) as exc:
+        raise InputError(f"cannot read the sparse .npy: {exc}") from None
+
+
+def _sparse_array(data: bytes, depth_scale: float | None) -> np.ndarray:
+    """A dense map or a returns list from file bytes: .npy, 16-bit PNG (times ``depth_scale``
+    metres per unit) or CSV (``row,col,z_m``)."""
+    if data.startswith(NPY_MAGIC):
+        return _load_npy(data)
+    if data.startswith(PNG_SIGNATURE):
+        if depth_scale is None:
+            raise InputError("a 16-bit PNG sparse map needs depth_scale (metres per unit)")
+        units = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if units is None or units.dtype != np.uint16 or units.ndim != 2:
+            raise InputError("a sparse PNG must be single-channel 16-bit")
+        return units.astype(np.float32) * np.float32(depth_scale)
+    try:
+        return parse_returns_csv(data.decode("utf-8"), "sparse CSV")
+    except UnicodeDecodeError:
+        raise InputError(
+            "sparse must be a .npy file, a 16-bit PNG (with depth_scale) or a CSV of returns "
+            "(header row,col,z_m)"
+        ) from None
+
+
+def returns_list(
+    sparse: Source | None, returns: np.ndarray | None, shape: tuple[int, int], depth_scale=None
+) -> np.ndarray:
+    """The LIDAR returns as float32 (N, 3) (row, column, Z metres) for a frame of ``shape``:
+    ``returns`` as given, or those of ``sparse``: a dense (H, W) map in metres (array, .npy
+    or 16-bit PNG with ``depth_scale``) or a list ((N, 3) array or .npy, CSV file)."""
+    if (sparse is None) == (returns is None):
+        raise InputError("give the LIDAR returns once: sparse (map or file) or returns (list)")
+    if returns is None:
+        if isinstance(sparse, np.ndarray):
+            returns = sparse
+        else:
+            data = sparse if isinstance(sparse, bytes) else read_file(sparse, "sparse depth")
+            returns = _sparse_array(data, depth_scale)
+    is_map = returns.ndim == 2 and returns.shape == shape
+    if is_map and returns.dtype not in (np.float32, np.float64):
+        raise InputError(f"a sparse map must hold float32 or float64 metres, got {returns.dtype}")
+    if returns.ndim != 2 or not (is_map or returns.shape[1] == 3):
+        raise InputError(
+            f"sparse must be a (H, W) = {shape} map in metres or an (N, 3) list of returns, "
+            f"got shape {returns.shape}"
+        )
+    try:
+        return returns_from_dense(returns) if is_map else check_returns(returns, shape)
+    except ReturnsError as exc:
+        raise InputError(f"LIDAR returns: {exc}") from None
 
 
 def _error_of(response: httpx.Response) -> ServiceError:
+    """The service's error: its own shape ``{"error": {"code", "message"}}``, or the
+    Open Inference Protocol's ``{"error": "message"}`` with the code in a header."""
+    status = response.status_code
     try:
         error = response.json()["error"]
-        return ServiceError(response.status_code, error["code"], error["message"])
+        if isinstance(error, str):
+            code = response.headers.get("sdcnet-error-code", f"http_{status}")
+            return ServiceError(status, code, error)
+        return ServiceError(status, error["code"], error["message"])
     except (ValueError, KeyError, TypeError):
         text = response.text.strip()[:200] or response.reason_phrase
         return ServiceError(response.status_code, f"http_{response.status_code}", text)
@@ -206,42 +265,43 @@ class Client:
     def complete(
         self,
         gray: Source,
-        sparse: Source,
+        sparse: Source | None = None,
         *,
+        returns: np.ndarray | None = None,
         fx: float | None = None,
         fy: float | None = None,
         cx: float | None = None,
         cy: float | None = None,
         depth_scale: float | None = None,
         outlier_removal: bool = False,
+        float16_depth: bool = False,
     ) -> Completion:
         """Complete one frame.
 
         ``gray``: uint8/uint16 array or an image file (PNG, TIFF, JPEG, BMP) as path or bytes.
-        ``sparse``: float32/float64 (H, W) metres (0 = no return), or a ``.npy`` file, or a
-        16-bit PNG with ``depth_scale`` (metres per unit). Intrinsics in pixels; those not
-        given are the model's, scaled to the image size.
+        The LIDAR returns, once: ``sparse``, a float32/float64 (H, W) map in metres (0 = no
+        return) as an array, a ``.npy`` file or a 16-bit PNG with ``depth_scale`` (metres per
+        unit), or a list as an (N, 3) array or ``.npy`` or a CSV file (``row,col,z_m``); or
+        ``returns``, an (N, 3) array (row, column, Z metres). Intrinsics in pixels; those not
+        given are the model's, scaled to the image size. ``float16_depth`` halves the depth's
+        bytes at a precision of 8 mm (``sdcnet.compact``); by default the depth is exact.
         """
-        files = {"gray": _gray_upload(gray), "sparse": _sparse_upload(sparse)}
-        fields = {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "depth_scale": depth_scale}
-        data = {k: repr(float(v)) for k, v in fields.items() if v is not None}
-        data["outlier_removal"] = "true" if outlier_removal else "false"
+        image = gray_array(gray)
+        listed = returns_list(sparse, returns, image.shape, depth_scale)
+        options = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
+        parameters: dict[str, Any] = {k: float(v) for k, v in options.items() if v is not None}
+        parameters["outlier_removal"] = outlier_removal
+        body, headers = protocol.request_body(image, listed, parameters, float16_depth)
         start = time.perf_counter()
-        response = self._request(
-            "POST", "/complete", params={"format": "npz"}, files=files, data=data
-        )
+        response = self._request("POST", protocol.PATH, content=body, headers=headers)
         latency = time.perf_counter() - start
         try:
-            with np.load(io.BytesIO(response.content), allow_pickle=False) as npz:
-                return Completion(
-                    depth=npz["depth.npy"],
-                    mask=npz["mask.npy"].astype(bool),
-                    points=npz["points.npy"],
-                    meta=json.loads(npz["meta.json"]),
-                    latency_s=latency,
-                )
-        except (ValueError, KeyError, OSError) as exc:
-            raise ClientError(f"unexpected answer from {self.url}/complete: {exc}") from exc
+            answer = protocol.read_answer(
+                response.content, response.headers.get(protocol.HEADER_LENGTH), image.shape
+            )
+        except protocol.AnswerError as exc:
+            raise ClientError(f"unexpected answer from {self.url}{protocol.PATH}: {exc}") from exc
+        return Completion(answer.depth, answer.mask, answer.points, answer.meta, latency)
 
     def health(self) -> dict[str, bool]:
         """{"live": ..., "ready": ...}, asked once (no retries); raises ServiceUnreachableError."""

@@ -3,7 +3,8 @@
 A batch input is one of:
 
 - a folder of pairs: each gray image ``NAME.png`` (or .tif, .tiff, .jpg, .jpeg, .bmp) with
-  its sparse map ``NAME.npy`` (metres) or ``NAME.sparse.png`` (16-bit, needs a depth scale);
+  its LIDAR returns ``NAME.npy`` (map in metres), ``NAME.sparse.png`` (16-bit map, needs a
+  depth scale) or ``NAME.csv`` (list: ``row,col,z_m``);
 - a JSON-lines manifest, one pair per line: ``{"gray": PATH, "sparse": PATH}`` with optional
   ``"id"``, ``"depth_scale"``, ``"fx"``, ``"fy"``, ``"cx"``, ``"cy"``; paths are relative to
   the manifest's folder;
@@ -26,8 +27,16 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from sdcnet.client.api import Client, ClientError, Completion, InputError, Source, read_file
-from sdcnet.client.outputs import local_image, write_outputs
+from sdcnet.client.api import (
+    Client,
+    ClientError,
+    Completion,
+    InputError,
+    Source,
+    gray_array,
+    read_file,
+)
+from sdcnet.client.outputs import write_outputs
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 SPARSE_PNG_SUFFIX = ".sparse.png"
@@ -61,8 +70,16 @@ def _folder_pairs(folder: Path) -> list[Pair]:
         if path.suffix.lower() not in IMAGE_SUFFIXES or name.endswith(SPARSE_PNG_SUFFIX):
             continue
         stem = path.with_suffix("")
-        npy, png = stem.with_suffix(".npy"), Path(f"{stem}{SPARSE_PNG_SUFFIX}")
-        pairs.append(Pair(stem.name, path, npy if npy.exists() or not png.exists() else png))
+        found = [
+            candidate
+            for candidate in (
+                stem.with_suffix(".npy"),
+                Path(f"{stem}{SPARSE_PNG_SUFFIX}"),
+                stem.with_suffix(".csv"),
+            )
+            if candidate.exists()
+        ]
+        pairs.append(Pair(stem.name, path, found[0] if found else stem.with_suffix(".npy")))
     return pairs
 
 
@@ -130,6 +147,7 @@ def run_batch(
     outlier_removal: bool = False,
     defaults: dict[str, float] | None = None,
     progress: bool = True,
+    float16_depth: bool = False,
 ) -> BatchReport:
     """Complete every pair, at most ``concurrency`` requests at once, writing ``out/<name>/``.
     ``defaults`` (depth_scale, intrinsics) apply where a pair does not set its own."""
@@ -141,8 +159,11 @@ def run_batch(
         if pair.sparse.suffix.lower() != ".png":
             options.pop("depth_scale", None)  # a scale is for 16-bit PNG maps only
         options.update(pair.options)
-        result = client.complete(gray, sparse, outlier_removal=outlier_removal, **options)
-        write_outputs(out / pair.name, local_image(gray), result)
+        image = gray_array(gray)
+        result = client.complete(
+            image, sparse, outlier_removal=outlier_removal, float16_depth=float16_depth, **options
+        )
+        write_outputs(out / pair.name, image, result)
         return result
 
     start = time.perf_counter()

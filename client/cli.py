@@ -1,6 +1,7 @@
 """``sdc-client``: talk to an sdcnet service from the command line.
 
     sdc-client infer GRAY SPARSE [--out DIR] [--fx F --fy F --cx C --cy C] [--depth-scale S]
+                                 [--float16-depth]
     sdc-client batch DIR_OR_MANIFEST --out DIR [--concurrency N] [--split test]
     sdc-client health
     sdc-client model
@@ -24,10 +25,11 @@ from sdcnet.client.api import (
     InputError,
     ServiceError,
     ServiceUnreachableError,
+    gray_array,
     read_file,
 )
 from sdcnet.client.batch import find_pairs, run_batch
-from sdcnet.client.outputs import local_image, summary, write_outputs
+from sdcnet.client.outputs import summary, write_outputs
 
 EXIT_OK, EXIT_FAILED_PAIRS, EXIT_INPUT, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2, 3, 4
 
@@ -56,6 +58,11 @@ def _frame_options() -> argparse.ArgumentParser:
     frame.add_argument(
         "--outlier-removal", action="store_true", help="statistical outlier removal on points"
     )
+    frame.add_argument(
+        "--float16-depth",
+        action="store_true",
+        help="depth as float16 on the wire: half the bytes, within 8 mm (default: exact)",
+    )
     return frame
 
 
@@ -73,7 +80,12 @@ def parser() -> argparse.ArgumentParser:
         "infer", parents=[common, frame], help="complete one frame and write its files"
     )
     infer.add_argument("gray", type=Path, help="gray image: PNG, TIFF, JPEG or BMP")
-    infer.add_argument("sparse", type=Path, help=".npy (metres) or 16-bit PNG (--depth-scale)")
+    infer.add_argument(
+        "sparse",
+        type=Path,
+        help="LIDAR returns: .npy map (metres), 16-bit PNG map (--depth-scale) or CSV list "
+        "(row,col,z_m)",
+    )
     infer.add_argument("--out", type=Path, default=Path("sdcnet-out"), help="output folder")
     batch = sub.add_parser(
         "batch", parents=[common, frame], help="complete many frames, a folder per frame"
@@ -94,12 +106,16 @@ def _frame_kwargs(args: argparse.Namespace) -> dict[str, float]:
 
 
 def cmd_infer(client: Client, args: argparse.Namespace) -> int:
-    gray = read_file(args.gray, "gray image")
+    gray = gray_array(args.gray)
     sparse = read_file(args.sparse, "sparse depth")
     result = client.complete(
-        gray, sparse, outlier_removal=args.outlier_removal, **_frame_kwargs(args)
+        gray,
+        sparse,
+        outlier_removal=args.outlier_removal,
+        float16_depth=args.float16_depth,
+        **_frame_kwargs(args),
     )
-    written = write_outputs(args.out, local_image(gray), result)
+    written = write_outputs(args.out, gray, result)
     print(summary(result, client.url, written))
     return EXIT_OK
 
@@ -116,6 +132,7 @@ def cmd_batch(client: Client, args: argparse.Namespace) -> int:
         args.out,
         concurrency=args.concurrency,
         outlier_removal=args.outlier_removal,
+        float16_depth=args.float16_depth,
         defaults=_frame_kwargs(args),
         progress=not args.no_progress,
     )

@@ -8,9 +8,10 @@ it is 0 by construction. The service sends, where a client asks for it:
   pasting them into zeros gives the full frame back exactly;
 - **bits**: the mask as ``numpy.packbits`` of its row-major pixels (8 per byte, first pixel in
   the high bit): exact;
-- **fp16**: depth as float16 residuals above an offset (the nearest depth, metres), NaN where
-  the depth is 0. Lossy: a residual r is kept to 2^-11 of r, so depths within 32 m of the
-  nearest come back within 8 mm (within 16 mm up to 64 m deep; a spacecraft is < 30 m).
+- **fp16**: depth as float16 residuals above an offset (the nearest depth, metres), -1 where
+  the depth is 0 (a residual is never negative; NaN would not survive JSON). Lossy: a
+  residual r is kept to 2^-11 of r, so depths within 32 m of the nearest come back within
+  8 mm (within 16 mm up to 64 m deep; a spacecraft is < 30 m).
 
 The service (``sdcnet.service``) makes these layouts, the client (``sdcnet.client``) undoes
 them; both use this module, so the two ends cannot disagree.
@@ -53,18 +54,22 @@ def unpack_mask(bits: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return np.unpackbits(bits, count=pixels).reshape(shape).astype(bool)
 
 
+#: The float16 residual of a pixel without depth.
+NO_DEPTH = -1.0
+
+
 def fp16_residuals(depth: np.ndarray) -> tuple[np.ndarray, float]:
     """float16 residuals of a float32 depth map above its nearest non-zero depth (metres),
-    NaN where the depth is 0, and that offset (0.0 when there is no depth at all)."""
+    ``NO_DEPTH`` where the depth is 0, and that offset (0.0 when there is no depth at all)."""
     present = depth != 0
     offset = np.float32(depth[present].min()) if present.any() else np.float32(0)
-    residuals = np.full(depth.shape, np.nan, np.float16)
+    residuals = np.full(depth.shape, NO_DEPTH, np.float16)
     residuals[present] = (depth[present] - offset).astype(np.float16)
     return residuals, float(offset)
 
 
 def depth_from_fp16(residuals: np.ndarray, offset: float) -> np.ndarray:
-    """float32 depth (metres, 0 where a residual is NaN) of ``fp16_residuals``' output."""
+    """float32 depth (metres, 0 where the residual is ``NO_DEPTH``) of ``fp16_residuals``."""
     depth = np.float32(offset) + residuals.astype(np.float32)
-    depth[np.isnan(residuals)] = 0
+    depth[residuals < 0] = 0
     return depth

@@ -64,6 +64,15 @@ def region_of_interest(sparse: np.ndarray, stride: int = 64) -> Region:
     return Region(y0, y1, x0, x1)
 
 
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """An image as OpenCV decodes it (IMREAD_UNCHANGED: gray, BGR or BGRA) -> gray (H, W) of
+    the same dtype; the one conversion the service and the client apply to user images."""
+    if image.ndim == 3:
+        conversion = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}.get(image.shape[2])
+        image = cv2.cvtColor(image, conversion) if conversion is not None else image[..., 0]
+    return np.ascontiguousarray(image)
+
+
 def normalise_gray(gray: np.ndarray) -> np.ndarray:
     """uint8 or uint16 gray image -> float32 in [0, 1] (the model's input convention)."""
     if gray.dtype == np.uint8:

@@ -30,6 +30,7 @@ import torch
 from sdcnet.dataset_format import Sample
 from sdcnet.export.onnx_export import export_onnx, model_metadata
 from sdcnet.npyio import npy_bytes
+from sdcnet.returns import returns_from_dense
 from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
 from sdcnet.training.model.sdcnet import SDCNet
 
@@ -183,6 +184,7 @@ def _wait_ready(process: subprocess.Popen, log: Path, timeout_s: float = 90.0) -
 # -- fuzzing the API from its OpenAPI schema (tests/test_fuzz.py, benchmarks/fuzz.py) ------
 
 COMPLETE = "POST /complete"
+V2_INFER = "POST /v2/models/sdcnet/infer"
 
 
 @dataclass
@@ -213,12 +215,21 @@ class FuzzReport:
         return "\n".join(lines + self.failures)
 
 
-def fuzz_frame(depth_scale: float | None) -> dict[str, bytes]:
-    """A valid 64 x 64 frame for POST /complete: a gray gradient and 256 returns at 100-115 m,
-    as a ``.npy`` or, when ``depth_scale`` (metres per unit) is given, a 16-bit PNG."""
+def fuzz_arrays() -> tuple[np.ndarray, np.ndarray]:
+    """A valid 64 x 64 frame: a gray gradient (uint8) and 256 returns at 100-115 m (dense)."""
     gray = np.add.outer(np.arange(64), np.arange(64)).astype(np.uint8)
     sparse = np.zeros((64, 64), np.float32)
     sparse[::4, ::4] = 100 + np.arange(256, dtype=np.float32).reshape(16, 16) / 16
+    return gray, sparse
+
+
+def fuzz_frame(depth_scale: float | None, as_returns: bool = False) -> dict[str, bytes]:
+    """``fuzz_arrays`` as the files of POST /complete: gray PNG and the returns as a ``.npy``
+    map or, when ``depth_scale`` (metres per unit) is given, a 16-bit PNG; or, ``as_returns``,
+    a ``.npy`` list (field ``returns``)."""
+    gray, sparse = fuzz_arrays()
+    if as_returns:
+        return {"gray": png_bytes(gray), "returns": npy_bytes(returns_from_dense(sparse))}
     if depth_scale is None:
         return {"gray": png_bytes(gray), "sparse": npy_bytes(sparse)}
     units = np.clip(np.round(sparse / depth_scale), 0, 65535).astype(np.uint16)
@@ -226,27 +237,60 @@ def fuzz_frame(depth_scale: float | None) -> dict[str, bytes]:
     return {"gray": png_bytes(gray), "sparse": png_bytes(units)}
 
 
-def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
-    """schemathesis ``before_call`` hook: a positive (schema-valid) ``POST /complete`` case is
-    sent with a real frame in place of its generated ``gray`` and ``sparse`` bytes.
+def fuzz_inputs(binary: bool) -> tuple[list[dict], bytes]:
+    """``fuzz_arrays`` as the inputs of POST /v2/models/sdcnet/infer (gray UINT8, returns
+    FP32), as JSON data or, when ``binary``, as binary data: (inputs, binary bytes)."""
+    gray, sparse = fuzz_arrays()
+    returns = returns_from_dense(sparse)
+    inputs = [
+        {"name": "gray", "datatype": "UINT8", "shape": list(gray.shape)},
+        {"name": "returns", "datatype": "FP32", "shape": list(returns.shape)},
+    ]
+    if not binary:
+        for entry, array in zip(inputs, (gray, returns), strict=True):
+            entry["data"] = array.ravel().tolist()
+        return inputs, b""
+    for entry, array in zip(inputs, (gray, returns), strict=True):
+        entry["parameters"] = {"binary_data_size": array.nbytes}
+    return inputs, gray.tobytes() + returns.tobytes()
 
-    The schema can say that both are files, not that they are a decodable image and a depth
-    map of the same size; without this, every "valid" case would be refused (rightly) and the
-    positive_data_acceptance check would test nothing. Every other field keeps its generated
-    value (intrinsics, depth_scale, outlier_removal, format). The frame goes in the transport's
-    ``files`` and ``data``, so the case itself (and its positive label) is left as generated.
-    Negative cases are sent as generated.
+
+def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
+    """schemathesis ``before_call`` hook: a positive (schema-valid) inference case is sent
+    with a real frame in place of its generated images and tensors.
+
+    The schema can say that ``gray`` and ``sparse`` are files, not that they are a decodable
+    image and a depth map of the same size (nor that a form gives one of ``sparse`` and
+    ``returns``); it can say that v2 inputs are tensors, not which names, shapes and bytes make
+    a frame (nor that an output is asked for once). Without this, every "valid" case would be
+    refused (rightly) and the positive_data_acceptance check would test nothing. Every other
+    field keeps its generated value (intrinsics, depth_scale, outlier_removal, format; the v2
+    request's id, parameters and outputs). The frame goes in the transport's arguments, so the
+    case itself (and its positive label) is left as generated. Negative cases are sent as
+    generated.
     """
     meta = case.meta
-    positive = meta is not None and meta.generation.mode.value == "positive"
-    if f"{case.method.upper()} {case.path}" != COMPLETE or not positive:
+    if meta is None or meta.generation.mode.value != "positive":
         return
-    if not isinstance(case.body, dict):
-        return
-    fields = {k: v for k, v in case.body.items() if k not in ("gray", "sparse")}
-    frame = fuzz_frame(fields.get("depth_scale"))
-    kwargs["files"] = {name: (f"{name}.bin", data) for name, data in frame.items()}
-    kwargs["data"] = {k: v if isinstance(v, str) else json.dumps(v) for k, v in fields.items()}
+    operation = f"{case.method.upper()} {case.path}"
+    if operation == COMPLETE and isinstance(case.body, dict):
+        fields = {k: v for k, v in case.body.items() if k not in ("gray", "sparse", "returns")}
+        as_returns = "returns" in case.body and "sparse" not in case.body
+        frame = fuzz_frame(fields.get("depth_scale"), as_returns and "depth_scale" not in fields)
+        kwargs["files"] = {name: (f"{name}.bin", data) for name, data in frame.items()}
+        kwargs["data"] = {k: v if isinstance(v, str) else json.dumps(v) for k, v in fields.items()}
+    elif operation == V2_INFER and isinstance(case.body, dict):
+        body = {**case.body, "inputs": fuzz_inputs(binary=False)[0]}
+        if body.get("outputs") is not None:
+            once = {output["name"]: output for output in reversed(body["outputs"])}
+            body["outputs"] = list(reversed(once.values())) or None
+        kwargs["json"] = body
+    elif operation == V2_INFER:  # the binary form: a JSON header, then the tensors' bytes
+        inputs, binary = fuzz_inputs(binary=True)
+        header = json.dumps({"inputs": inputs}).encode()
+        kwargs["data"] = header + binary
+        # (the transport takes headers from the case only; an undeclared header keeps it valid)
+        case.headers = {**(case.headers or {}), "Inference-Header-Content-Length": str(len(header))}
 
 
 def fuzz_api(url: str, max_examples: int, seed: int = 0) -> FuzzReport:

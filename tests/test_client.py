@@ -21,6 +21,7 @@ from sdcnet.client.api import Client, ServiceError
 from sdcnet.client.cli import main
 from sdcnet.client.outputs import OUTPUT_FILES
 from sdcnet.pointcloud import read_ply
+from sdcnet.returns import returns_csv, returns_from_dense
 
 
 @pytest.fixture(scope="module")
@@ -133,16 +134,31 @@ def test_a_missing_or_unreadable_file_exits_2(frame_files, tmp_path, capsys):
 
 def test_a_4xx_answer_exits_3_with_the_service_message(url, tmp_path, capsys):
     s = generated(256)
-    np.save(tmp_path / "small.npy", np.pad(s.sparse, ((0, 0), (0, 8))))
+    np.save(tmp_path / "sparse.npy", s.sparse)
     cv2.imwrite(str(tmp_path / "gray.png"), s.gray)
-    argv = ["infer", str(tmp_path / "gray.png"), str(tmp_path / "small.npy"), "--url", url]
-    assert main([*argv, "--out", str(tmp_path / "out")]) == 3
+    argv = ["infer", str(tmp_path / "gray.png"), str(tmp_path / "sparse.npy"), "--url", url]
+    assert main([*argv, "--fx", "-5", "--out", str(tmp_path / "out")]) == 3
     err = capsys.readouterr().err
-    assert "422 wrong_shape" in err and "gray is 256 x 256 but sparse is 264 x 256" in err
+    assert "400 invalid_request" in err
+    assert "parameters.fx: Input should be greater than or equal to 0.001" in err
     assert not (tmp_path / "out").exists()
     with Client(url) as client, pytest.raises(ServiceError) as raised:
         client.complete(s.gray, np.zeros_like(s.sparse))
     assert (raised.value.status, raised.value.code) == (422, "no_returns")
+
+
+def test_a_sparse_map_of_another_size_or_bad_returns_exit_2_before_sending(
+    frame_files, tmp_path, capsys
+):
+    gray, sparse = frame_files
+    np.save(tmp_path / "small.npy", np.pad(np.load(sparse), ((0, 0), (0, 8))))
+    argv = ["infer", str(gray), str(tmp_path / "small.npy"), "--url", "http://127.0.0.1:9"]
+    assert main([*argv, "--retries", "0"]) == 2
+    assert "a (H, W) = (256, 256) map in metres or an (N, 3) list" in capsys.readouterr().err
+    (tmp_path / "bad.csv").write_text("row,col,z_m\n3,300,100\n")
+    argv[2] = str(tmp_path / "bad.csv")
+    assert main([*argv, "--retries", "0"]) == 2
+    assert "lie outside the 256 x 256 frame" in capsys.readouterr().err
 
 
 def test_an_unreachable_server_exits_4(frame_files, capsys):
@@ -167,20 +183,24 @@ def test_batch_goes_on_past_a_failed_pair(url, tmp_path, capsys):
     s = generated(256)
     pairs = tmp_path / "pairs"
     pairs.mkdir()
-    for name in ("a", "b", "c"):
+    for name in ("a", "b", "c", "d"):
         cv2.imwrite(str(pairs / f"{name}.png"), s.gray)
     np.save(pairs / "a.npy", s.sparse)
     np.save(pairs / "b.npy", np.pad(s.sparse, ((0, 4), (0, 0))))  # wrong size: this one fails
     millimetres = np.round(s.sparse * 1000).astype(np.uint16)
     cv2.imwrite(str(pairs / "c.sparse.png"), millimetres)  # 16-bit PNG, needs a scale
+    (pairs / "d.csv").write_text(returns_csv(returns_from_dense(s.sparse)))  # a list of returns
     out = tmp_path / "out"
     argv = ["batch", str(pairs), "--out", str(out), "--url", url, "--depth-scale", "0.001"]
     assert main([*argv, "--concurrency", "2", "--no-progress"]) == 1
-    assert sorted(p.name for p in out.iterdir()) == ["a", "c"]
+    assert sorted(p.name for p in out.iterdir()) == ["a", "c", "d"]
     assert sorted(p.name for p in (out / "c").iterdir()) == sorted(OUTPUT_FILES)
+    np.testing.assert_array_equal(
+        np.load(out / "d" / "depth.npy"), np.load(out / "a" / "depth.npy")
+    )
     report = capsys.readouterr().out
-    assert "2 of 3 pairs completed, 1 failed" in report
-    assert "FAILED b: service answered 422 wrong_shape" in report
+    assert "3 of 4 pairs completed, 1 failed" in report
+    assert "FAILED b: sparse must be a (H, W) = (256, 256) map" in report
 
 
 def test_batch_of_a_manifest_and_of_a_dataset_split(url, frame_files, tiny_dataset, tmp_path):

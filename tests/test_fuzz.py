@@ -6,7 +6,7 @@ checks (no 5xx, responses as the schema says, invalid requests refused, valid on
 from __future__ import annotations
 
 import pytest
-from fixtures_runtime import COMPLETE, fuzz_api, random_model, running_service
+from fixtures_runtime import COMPLETE, V2_INFER, fuzz_api, random_model, running_service
 
 MAX_EXAMPLES = 40  # per operation and phase: about 150 requests, a few seconds
 
@@ -22,8 +22,9 @@ def url(tmp_path_factory):
 def test_the_api_passes_every_schemathesis_check(url):
     report = fuzz_api(url, MAX_EXAMPLES, seed=0)
     assert not report.failures, report.summary()
-    complete = report.statuses[COMPLETE]
-    assert complete.get(200, 0) >= 10, report.summary()  # valid frames were completed
-    assert sum(n for status, n in complete.items() if 400 <= status < 500) >= 30
-    assert all(status is not None and status < 500 for status in complete), report.summary()
-    assert len(report.statuses) == 9  # every operation of the schema
+    for operation in (COMPLETE, V2_INFER):  # both protocols' inference
+        statuses = report.statuses[operation]
+        assert statuses.get(200, 0) >= 10, report.summary()  # valid frames were completed
+        assert sum(n for status, n in statuses.items() if 400 <= status < 500) >= 30
+        assert all(status is not None and status < 500 for status in statuses), report.summary()
+    assert len(report.statuses) == 11  # every operation of the schema

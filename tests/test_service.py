@@ -85,9 +85,16 @@ def test_model_metadata(url):
     assert meta == httpx.get(f"{url}/v2/models/sdcnet").json()
     assert meta["name"] == "sdcnet" and meta["versions"] == [MODEL_VERSION]
     assert meta["provider"] == "CPUExecutionProvider" and meta["threads"] == 1
-    assert [t["name"] for t in meta["inputs"]] == ["gray", "sparse"]
-    assert [t["name"] for t in meta["outputs"]] == ["depth", "foreground"]
-    assert meta["inputs"][0]["datatype"] == "FP32" and meta["inputs"][0]["shape"][1] == 1
+    # the tensors of POST /v2/models/sdcnet/infer, not the ONNX graph's
+    tensors = {t["name"]: (t["datatype"], t["shape"]) for t in meta["inputs"] + meta["outputs"]}
+    assert tensors == {
+        "gray": ("UINT8", [-1, -1]),
+        "sparse": ("FP32", [-1, -1]),
+        "returns": ("FP32", [-1, 3]),
+        "depth": ("FP32", [-1, -1]),
+        "mask": ("UINT8", [-1, -1]),
+        "points": ("FP32", [-1, 3]),
+    }
     assert meta["intrinsics"]["fx"] == pytest.approx(7939.2, abs=0.1)
     assert meta["limits"] == {
         "max_pixels": MAX_PIXELS,
@@ -298,9 +305,11 @@ def test_unknown_paths_and_methods_get_the_same_error_shape(url):
     assert_error_shape(httpx.get(f"{url}/nowhere"), 404, "not_found")
     assert_error_shape(httpx.get(f"{url}/complete"), 405, "method_not_allowed")
     error = assert_error_shape(post(url, {"gray": frame_files()["gray"]}), 422, "invalid_request")
-    assert error["details"] == [
-        {"location": "form", "field": "sparse", "message": "Field required"}
-    ]
+    assert "the form field sparse (dense map) or returns (list), not neither" in error["message"]
+    error = assert_error_shape(
+        post(url, {"sparse": frame_files()["sparse"]}), 422, "invalid_request"
+    )
+    assert error["details"] == [{"location": "form", "field": "gray", "message": "Field required"}]
 
 
 def test_mangled_files_never_get_a_500(url):

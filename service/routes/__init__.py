@@ -1,6 +1,6 @@
 """The service's routes, one router per file: probes (liveness, readiness, metrics), model
-metadata, and ``POST /complete``."""
+metadata, ``POST /complete`` and the Open Inference Protocol's ``POST /v2/models/sdcnet/infer``."""
 
-from sdcnet.service.routes import complete, model, probes
+from sdcnet.service.routes import complete, model, probes, v2_infer
 
-ROUTERS = (probes.router, model.router, complete.router)
+ROUTERS = (probes.router, model.router, complete.router, v2_infer.router)

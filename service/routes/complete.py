@@ -9,10 +9,11 @@ from fastapi.responses import Response
 from pydantic import WithJsonSchema
 from starlette.concurrency import run_in_threadpool
 
+from sdcnet.service.decode import CompletionRequest
 from sdcnet.service.deps import EngineDep, SettingsDep
 from sdcnet.service.encode import MEDIA_TYPES
 from sdcnet.service.errors import ERROR_RESPONSES, ApiError
-from sdcnet.service.inference import CompletionRequest, answer
+from sdcnet.service.inference import answer
 from sdcnet.service.schemas import CompletionResponse, ResponseFormat
 
 router = APIRouter(tags=["inference"])
@@ -55,6 +56,16 @@ def optional_number(description: str, **bounds: float) -> Any:
     ]
 
 
+def optional_file(description: str) -> Any:
+    """The type of an optional file field: the OpenAPI schema says a file (not "file or
+    null": a form cannot send null), as ``optional_number`` does for numbers."""
+    return Annotated[
+        UploadFile | None,
+        File(description=description),
+        WithJsonSchema({"type": "string", "format": "binary", "description": description}),
+    ]
+
+
 _DEFAULT_K = "default: the model's, scaled to the image size"
 FocalLength = optional_number(f"pixels; {_DEFAULT_K}", gt=0)
 PrincipalPoint = optional_number(f"pixels; {_DEFAULT_K}")
@@ -91,13 +102,16 @@ async def complete(
         UploadFile,
         File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
     ],
-    sparse: Annotated[
-        UploadFile,
-        File(
-            description=".npy of float32/float64 metres (0 = no return), or a 16-bit PNG "
-            "with depth_scale"
-        ),
-    ],
+    sparse: optional_file(
+        "the LIDAR returns as a dense map: .npy of float32/float64 metres (H x W, 0 = no "
+        "return), or a 16-bit PNG with depth_scale. Send this or returns"
+    ) = None,
+    returns: optional_file(
+        "the LIDAR returns as a list, one per row: row, column (whole pixel indices) and Z "
+        "(metres > 0); a .npy of (N, 3) float32/float64 (exact, 12 bytes a return) or a CSV "
+        "text file with the header row,col,z_m. Where several fall on one pixel the nearest "
+        "wins. Send this or sparse"
+    ) = None,
     depth_scale: DepthScale = None,
     fx: FocalLength = None,
     fy: FocalLength = None,
@@ -112,11 +126,14 @@ async def complete(
 ) -> Response:
     """Complete one frame: dense depth (metres, 0 off the mask), mask and point cloud.
 
-    Intrinsics (pixels) not given are the model's, scaled to the image size.
+    The LIDAR returns come as a dense map (`sparse`) or as a list (`returns`: a few hundred
+    returns in a few kilobytes instead of a 4 MiB map for a 1024 x 1024 frame; the answers
+    are identical). Intrinsics (pixels) not given are the model's, scaled to the image size.
     """
     req = CompletionRequest(
         gray=await gray.read(),
-        sparse=await sparse.read(),
+        sparse=None if sparse is None else await sparse.read(),
+        returns=None if returns is None else await returns.read(),
         depth_scale=depth_scale,
         fx=fx,
         fy=fy,
