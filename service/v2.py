@@ -228,6 +228,10 @@ def parse_request(header: bytes) -> InferenceRequest:
         raise _bad(_validation_message(exc)) from None
 
 
+#: What numpy made of JSON data that is not numbers of the right kind.
+_KINDS = {"b": "booleans", "U": "strings", "O": "mixed or ragged values", "f": "fractions"}
+
+
 def _from_json(name: str, data: list, datatype: str, shape: tuple[int, ...]) -> np.ndarray:
     """The tensor of JSON ``data`` (flat or nested, row-major) as ``datatype``."""
     dtype = DTYPES[datatype]
@@ -242,12 +246,8 @@ def _from_json(name: str, data: list, datatype: str, shape: tuple[int, ...]) -> 
         )
     kinds = "iu" if dtype.kind == "u" else "iuf"
     if values.size and values.dtype.kind not in kinds:
-        raise _bad(
-            f"input {name}: data must hold {datatype} numbers, got {values.dtype.kind!r} "
-            "values (booleans, strings or mixed types?)",
-            "wrong_dtype",
-            400,
-        )
+        found = _KINDS.get(values.dtype.kind, "other values")
+        raise _bad(f"input {name}: data must hold {datatype} numbers, got {found}", "wrong_dtype")
     if dtype.kind == "u" and values.size:
         low, high = values.min(), values.max()
         if low < 0 or high > np.iinfo(dtype).max:
