@@ -4,9 +4,10 @@ answer layouts (``sdcnet.compact``) turned back into full-frame arrays.
 
 The request is a small JSON header followed by the raw gray image (1 byte a pixel) and the
 LIDAR returns as a list (12 bytes a return): no image codec, no multipart form, no dense map.
-The answer holds the depth and the mask of the region the network saw (everything outside it
-is 0), the mask 8 pixels a byte, and the points; ``read_answer`` pastes them into full frames,
-equal to the service's full-frame answer bit for bit (float16 depth, on request, is not).
+The answer holds the depth and the mask of the spacecraft's region (the smallest window that
+holds the mask: everything outside it is 0), the mask 8 pixels a byte, and the points;
+``read_answer`` pastes them into full frames, equal to the service's full-frame answer bit
+for bit (float16 depth, on request, is not).
 """
 
 from __future__ import annotations

@@ -1,11 +1,12 @@
 """Compact layouts of an answer's depth and mask, and the way back to full-frame arrays.
 
 A 1024 x 1024 answer is 4 MiB of float32 depth and 1 MiB of mask, nearly all zeros: the
-network sees only the spacecraft's region (``sdcnet.pipeline.Region``) and everything outside
-it is 0 by construction. The service sends, where a client asks for it:
+network sees only the region its LIDAR returns bound (``sdcnet.pipeline.Region``), the mask is
+0 outside it, and the depth is 0 off the mask. The service sends, where a client asks for it:
 
-- **region**: the arrays cut to the region, with its offset (row ``y0``, column ``x0``);
-  pasting them into zeros gives the full frame back exactly;
+- **region**: the arrays cut to the spacecraft's region, the smallest window that holds the
+  mask (``mask_window``), with its offset (row ``y0``, column ``x0``); everything outside it
+  is 0 by construction, so pasting them into zeros gives the full frame back exactly;
 - **bits**: the mask as ``numpy.packbits`` of its row-major pixels (8 per byte, first pixel in
   the high bit): exact;
 - **fp16**: depth as float16 residuals above an offset (the nearest depth, metres), -1 where
@@ -20,6 +21,22 @@ them; both use this module, so the two ends cannot disagree.
 from __future__ import annotations
 
 import numpy as np
+
+
+def mask_window(mask: np.ndarray, y0: int = 0, x0: int = 0) -> tuple[int, int, int, int]:
+    """(y0, x0, height, width) of the smallest window of ``mask`` holding all its True
+    pixels, offset by (``y0``, ``x0``) (where ``mask`` lies in a larger frame); an empty
+    mask gives an empty window at the offset."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return y0, x0, 0, 0
+    return (
+        y0 + int(rows[0]),
+        x0 + int(cols[0]),
+        int(rows[-1] - rows[0]) + 1,
+        int(cols[-1] - cols[0]) + 1,
+    )
 
 
 def crop(array: np.ndarray, y0: int, x0: int, height: int, width: int) -> np.ndarray:

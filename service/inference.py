@@ -10,6 +10,7 @@ phase is timed. ``complete_frame`` is the one path both protocols share.
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from collections.abc import Iterator
@@ -19,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sdcnet.camera import Intrinsics
+from sdcnet.compact import mask_window
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
 from sdcnet.runtime import ModelLoadError, OnnxModel
@@ -94,7 +96,7 @@ def self_test(model: OnnxModel) -> None:
         raise ModelLoadError(f"{model.path} answers {result.depth.dtype} depth, not float32")
 
 
-@dataclass(frozen=True)
+@dataclass
 class Completed:
     """One completed frame, before any protocol serialises it: depth float32 (H, W) metres,
     mask bool (H, W), points float32 (N, 3) metres, the region the network saw (everything
@@ -107,6 +109,12 @@ class Completed:
     intrinsics: Intrinsics
     returns: int
     outliers_removed: int
+
+    @functools.cached_property
+    def window(self) -> tuple[int, int, int, int]:
+        """(y0, x0, height, width): the smallest window holding the mask, outside which depth
+        and mask are 0 (``sdcnet.compact.mask_window``, searched within the region)."""
+        return mask_window(self.mask[self.region.slices], self.region.y0, self.region.x0)
 
     def summary(self, model: OnnxModel, timer: PhaseTimer) -> CompletionSummary:
         K = self.intrinsics

@@ -12,9 +12,9 @@ Inputs: ``gray`` (UINT8 or UINT16, [H, W]) and either ``sparse`` (FP32, [H, W], 
 return) or ``returns`` (FP32, [N, 3]: row, column, Z metres). Request parameters: ``fx``,
 ``fy``, ``cx``, ``cy`` (pixels) and ``outlier_removal``. Outputs: ``depth`` (FP32, [H, W]),
 ``mask`` (UINT8, [H, W]) and ``points`` (FP32, [N, 3]). sdcnet's own output parameters ask for
-the compact layouts of ``sdcnet.compact``: ``region`` (depth, mask: only the region the network
-saw, the answer says where), ``bits`` (mask: 8 pixels a byte) and ``fp16`` (depth: float16
-residuals above ``depth_offset``).
+the compact layouts of ``sdcnet.compact``: ``region`` (depth, mask: only the spacecraft's
+region, the smallest window holding the mask; the answer says where), ``bits`` (mask: 8
+pixels a byte) and ``fp16`` (depth: float16 residuals above ``depth_offset``).
 
 The JSON header is validated by the pydantic models below (their JSON schema is the route's
 OpenAPI request body); tensors are checked for datatype, shape and byte counts before any array
@@ -117,7 +117,9 @@ class BinaryOutputParameters(_Strict):
 
 
 class DepthOutputParameters(BinaryOutputParameters):
-    region: bool = Field(False, description="only the region the network saw (sdcnet)")
+    region: bool = Field(
+        False, description="only the smallest window holding the mask, 0 outside (sdcnet)"
+    )
     fp16: bool = Field(
         False,
         description="FP16 residuals above the output parameter depth_offset (metres), -1 "
@@ -126,7 +128,9 @@ class DepthOutputParameters(BinaryOutputParameters):
 
 
 class MaskOutputParameters(BinaryOutputParameters):
-    region: bool = Field(False, description="only the region the network saw (sdcnet)")
+    region: bool = Field(
+        False, description="only the smallest window holding the mask, 0 outside (sdcnet)"
+    )
     bits: bool = Field(False, description="8 pixels a byte, numpy.packbits order (sdcnet)")
 
 
@@ -367,10 +371,10 @@ def output_tensor(output: DepthOutput | MaskOutput | PointsOutput, done: Complet
     array = done.depth if isinstance(output, DepthOutput) else done.mask.astype(np.uint8)
     extra: dict[str, Scalar] = {}
     if params is not None and params.region:
-        r = done.region
-        array = crop(array, r.y0, r.x0, *r.shape)
-        extra = {"region_y0": r.y0, "region_x0": r.x0, "region_height": r.shape[0]}
-        extra["region_width"] = r.shape[1]
+        y0, x0, height, width = done.window
+        array = crop(array, y0, x0, height, width)
+        extra = {"region_y0": y0, "region_x0": x0, "region_height": height}
+        extra["region_width"] = width
     if isinstance(output, DepthOutput):
         if params is not None and params.fp16:
             array, offset = fp16_residuals(array)

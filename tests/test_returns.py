@@ -13,6 +13,7 @@ from sdcnet.compact import (
     crop,
     depth_from_fp16,
     fp16_residuals,
+    mask_window,
     pack_mask,
     paste,
     unpack_mask,
@@ -117,8 +118,14 @@ def test_region_and_bits_round_trip_exactly():
     depth = np.zeros((37, 53), np.float32)
     depth[5:20, 9:40] = rng.uniform(50, 250, (15, 31)).astype(np.float32)
     mask = depth > 0
-    window = crop(depth, 5, 9, 15, 31)
+    assert mask_window(mask) == (5, 9, 15, 31)
+    assert mask_window(mask[2:, 3:], 2, 3) == (5, 9, 15, 31)  # a part of the frame, offset
+    window = crop(depth, *mask_window(mask))
     np.testing.assert_array_equal(paste(window, 5, 9, depth.shape), depth)
+    empty = mask_window(np.zeros((6, 6), bool), 2, 3)  # nothing: an empty window
+    assert empty == (2, 3, 0, 0)
+    nothing = unpack_mask(pack_mask(np.zeros((0, 0), bool)), (0, 0))
+    np.testing.assert_array_equal(paste(nothing, 2, 3, (6, 6)), np.zeros((6, 6), bool))
     for shape in ((15, 31), (1, 1), (8, 8), (3, 5)):  # byte counts with and without padding
         m = rng.random(shape) > 0.5
         np.testing.assert_array_equal(unpack_mask(pack_mask(m), shape), m)
