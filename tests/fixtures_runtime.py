@@ -237,22 +237,34 @@ def fuzz_frame(depth_scale: float | None, as_returns: bool = False) -> dict[str,
     return {"gray": png_bytes(gray), "sparse": png_bytes(units)}
 
 
-def fuzz_inputs(binary: bool) -> tuple[list[dict], bytes]:
-    """``fuzz_arrays`` as the inputs of POST /v2/models/sdcnet/infer (gray UINT8, returns
-    FP32), as JSON data or, when ``binary``, as binary data: (inputs, binary bytes)."""
-    gray, sparse = fuzz_arrays()
-    returns = returns_from_dense(sparse)
+def v2_inputs(gray: np.ndarray, returns: np.ndarray, binary: bool) -> tuple[list[dict], bytes]:
+    """The inputs of POST /v2/models/sdcnet/infer for gray (UINT8) and returns (FP32), as JSON
+    data or, when ``binary``, as binary data: (inputs, binary bytes)."""
     inputs = [
         {"name": "gray", "datatype": "UINT8", "shape": list(gray.shape)},
         {"name": "returns", "datatype": "FP32", "shape": list(returns.shape)},
     ]
-    if not binary:
-        for entry, array in zip(inputs, (gray, returns), strict=True):
+    arrays = (gray, returns.astype("<f4"))
+    for entry, array in zip(inputs, arrays, strict=True):
+        if binary:
+            entry["parameters"] = {"binary_data_size": array.nbytes}
+        else:
             entry["data"] = array.ravel().tolist()
-        return inputs, b""
-    for entry, array in zip(inputs, (gray, returns), strict=True):
-        entry["parameters"] = {"binary_data_size": array.nbytes}
-    return inputs, gray.tobytes() + returns.tobytes()
+    return inputs, b"".join(a.tobytes() for a in arrays) if binary else b""
+
+
+def v2_body(gray: np.ndarray, returns: np.ndarray) -> tuple[bytes, dict[str, str]]:
+    """(body, headers) of a binary request to POST /v2/models/sdcnet/infer as tritonclient
+    sends one by default: gray UINT8 and returns FP32 as binary data, every output binary."""
+    inputs, binary = v2_inputs(gray, returns, binary=True)
+    header = json.dumps({"inputs": inputs, "parameters": {"binary_data_output": True}}).encode()
+    return header + binary, {"Inference-Header-Content-Length": str(len(header))}
+
+
+def fuzz_inputs(binary: bool) -> tuple[list[dict], bytes]:
+    """``fuzz_arrays`` as the inputs of POST /v2/models/sdcnet/infer (``v2_inputs``)."""
+    gray, sparse = fuzz_arrays()
+    return v2_inputs(gray, returns_from_dense(sparse), binary)
 
 
 def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
