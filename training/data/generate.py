@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
+import os
+import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -157,6 +159,15 @@ def dataset_info(config: GenerateConfig) -> dict:
     }
 
 
+def write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path``, then rename it: shards on other
+    machines that share the folder (``deploy/dataset-job.yaml``) read the old file or the new
+    one, never half of one."""
+    with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False) as f:
+        f.write(text)
+    os.replace(f.name, path)
+
+
 def generate(
     config: GenerateConfig,
     out: Path,
@@ -173,7 +184,7 @@ def generate(
     text = json.dumps(info, indent=1, sort_keys=True) + "\n"
     if info_path.exists() and info_path.read_text() != text:
         raise ValueError(f"{out} holds a dataset made with other settings; use another --out")
-    info_path.write_text(text)
+    write_atomically(info_path, text)
     splits = model_splits(config)
     n_models = config.models + len(config.meshes)
     tasks = [(config, out, m, v, splits[m]) for m in range(n_models) for v in range(config.views)]
@@ -197,5 +208,5 @@ def generate(
     if not all(is_complete(f) for f in files):
         return None
     lines = [json.dumps(read_meta(f), sort_keys=True) for f in files]
-    (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+    write_atomically(out / "manifest.jsonl", "\n".join(lines) + "\n")
     return SampleStore(out)
