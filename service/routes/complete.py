@@ -13,7 +13,7 @@ from sdcnet.service.decode import CompletionRequest
 from sdcnet.service.deps import EngineDep, SettingsDep
 from sdcnet.service.encode import MEDIA_TYPES
 from sdcnet.service.errors import ERROR_RESPONSES, ApiError
-from sdcnet.service.inference import answer
+from sdcnet.service.inference import SERVER_TIMING_HEADER, answer
 from sdcnet.service.schemas import CompletionResponse, ResponseFormat
 
 router = APIRouter(tags=["inference"])
@@ -82,13 +82,7 @@ DepthScale = optional_number("metres per unit of a 16-bit PNG sparse", ge=1e-6, 
             "description": "format=json: this document; format=npz: a zip of depth.npy, "
             "mask.npy, points.npy and meta.json; format=ply: the point cloud as binary PLY",
             "content": {"application/octet-stream": {}},
-            "headers": {
-                "Server-Timing": {
-                    "description": "milliseconds per phase: decode, queue, inference, encode",
-                    "required": True,
-                    "schema": {"type": "string"},
-                }
-            },
+            "headers": SERVER_TIMING_HEADER,
         },
         **ERROR_RESPONSES,
     },

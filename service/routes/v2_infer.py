@@ -16,6 +16,7 @@ from starlette.concurrency import run_in_threadpool
 from sdcnet.service import v2
 from sdcnet.service.deps import MODEL_NAME, EngineDep, SettingsDep
 from sdcnet.service.errors import V2_ERROR_RESPONSES, ApiError
+from sdcnet.service.inference import SERVER_TIMING_HEADER
 
 router = APIRouter(tags=["open inference protocol v2"])
 
@@ -53,14 +54,7 @@ _HEADER_LENGTH_DOC = {
             "description": "the JSON header (this schema) alone, or followed by the binary "
             "data of the outputs sent as binary (application/octet-stream)",
             "content": {"application/octet-stream": {}},
-            "headers": {
-                "Server-Timing": {
-                    "description": "milliseconds per phase: decode, queue, inference, encode",
-                    "required": True,
-                    "schema": {"type": "string"},
-                },
-                **_HEADER_LENGTH_DOC,
-            },
+            "headers": {**SERVER_TIMING_HEADER, **_HEADER_LENGTH_DOC},
         },
         **V2_ERROR_RESPONSES,
     },
