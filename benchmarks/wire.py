@@ -23,7 +23,9 @@ of them alike):
   4 MiB ``.npy`` map the service used to need.
 
 Reports p50 and p95 of each and their ratio to the in-process pipeline's, the server's median
-phases (its ``Server-Timing``) and the bytes each way, against the targets: Client.complete and
+phases (its ``Server-Timing``), the CPU time each call cost the server and the caller (from
+/proc and getrusage: a measure of where the time goes that the machine's other load does not
+blur as much as wall time) and the bytes each way, against the targets: Client.complete and
 tritonclient <= 1.25x the in-process pipeline at p50, POST /complete npz <= 1.5x. Writes
 docs/benchmarks/wire.md and wire.json.
 """
@@ -34,6 +36,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import subprocess
 import sys
 import tempfile
@@ -79,13 +82,30 @@ _CLI_LATENCY = re.compile(r"latency\s+([\d.]+) ms round trip")
 
 @dataclass
 class Shot:
-    """One call: wall seconds, the server's phases (ms), bytes sent and received."""
+    """One call: wall seconds, the server's phases (ms), bytes sent and received, CPU
+    seconds it cost the server and the caller (this process and its children)."""
 
     seconds: float
     phases_ms: dict[str, float] = field(default_factory=dict)
     sent: int = 0
     received: int = 0
     reported_ms: float | None = None  # what sdc-client itself printed
+    server_cpu_s: float = 0.0
+    caller_cpu_s: float = 0.0
+
+
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) process ``pid`` has used, from /proc/PID/stat."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def caller_cpu_s() -> float:
+    """CPU seconds this process and its finished children have used."""
+    own, children = (
+        resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+    )
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def test_split_frame(data: Path) -> tuple[Sample, str]:
@@ -161,7 +181,8 @@ class Paths:
     def in_process(self) -> Shot:
         timer = PhaseTimer()
         start = time.perf_counter()
-        frame = frame_of(self.gray, None, self.returns, self.max_pixels)
+        with timer("decode"):
+            frame = frame_of(self.gray, None, self.returns, self.max_pixels)
         complete_frame(self.engine, frame, self.max_pixels, timer)
         return Shot(time.perf_counter() - start, {p: s * 1e3 for p, s in timer.seconds.items()})
 
@@ -218,8 +239,9 @@ class Paths:
         return Shot(seconds, phases, len(body[0]), len(content))
 
 
-def measure(paths: Paths, rounds: int, warmup: int = 2) -> dict[str, list[Shot]]:
-    """``rounds`` rounds of every path, in an order that rotates each round."""
+def measure(paths: Paths, server_pid: int, rounds: int, warmup: int = 2) -> dict[str, list[Shot]]:
+    """``rounds`` rounds of every path, in an order that rotates each round; one call at a
+    time, so the server's CPU during a call is that call's."""
     calls = paths.calls()
     names = list(calls)
     for _ in range(warmup):
@@ -228,7 +250,11 @@ def measure(paths: Paths, rounds: int, warmup: int = 2) -> dict[str, list[Shot]]
     shots: dict[str, list[Shot]] = {name: [] for name in names}
     for r in range(rounds):
         for name in names[r % len(names) :] + names[: r % len(names)]:
-            shots[name].append(calls[name]())
+            server, caller = process_cpu_s(server_pid), caller_cpu_s()
+            shot = calls[name]()
+            shot.server_cpu_s = process_cpu_s(server_pid) - server
+            shot.caller_cpu_s = caller_cpu_s() - caller
+            shots[name].append(shot)
     return shots
 
 
@@ -245,6 +271,9 @@ def summarise(shots: dict[str, list[Shot]]) -> dict[str, dict]:
         }
         reported = [s.reported_ms for s in runs if s.reported_ms is not None]
         rows[name] = {
+            # means: /proc counts CPU in clock ticks (10 ms), too coarse for a median
+            "server_cpu_ms": 1e3 * float(np.mean([s.server_cpu_s for s in runs])),
+            "caller_cpu_ms": 1e3 * float(np.mean([s.caller_cpu_s for s in runs])),
             "p50_ms": float(np.percentile(ms, 50)),
             "p95_ms": float(np.percentile(ms, 95)),
             "ratio_p50": float(np.percentile(ms, 50) / base_p50),
@@ -261,8 +290,8 @@ def summarise(shots: dict[str, list[Shot]]) -> dict[str, dict]:
 def table(rows: dict[str, dict]) -> str:
     lines = [
         "| path | p50 ms | p95 ms | p50 / in-process | p95 / in-process | target | server "
-        "decode / inference / encode ms | bytes up / down |",
-        "|---|---|---|---|---|---|---|---|",
+        "decode / inference / encode ms | CPU ms: server + caller | bytes up / down |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, r in rows.items():
         target = TARGETS.get(name)
@@ -279,7 +308,8 @@ def table(rows: dict[str, dict]) -> str:
             label += f" (its own round trip: p50 {r['reported_round_trip_p50_ms']:.1f} ms)"
         lines.append(
             f"| {label} | {r['p50_ms']:.1f} | {r['p95_ms']:.1f} | {r['ratio_p50']:.2f}x | "
-            f"{r['ratio_p95']:.2f}x | {verdict} | {phases} | {size} |"
+            f"{r['ratio_p95']:.2f}x | {verdict} | {phases} | {r['server_cpu_ms']:.0f} + "
+            f"{r['caller_cpu_ms']:.0f} | {size} |"
         )
     return "\n".join(lines)
 
@@ -304,6 +334,7 @@ def main(argv: list[str] | None = None) -> int:
 
     frames = [test_split_frame(args.data), real_mesh_frame(args.meshes, args.mesh)]
     results = {}
+    load_before = os.getloadavg()
     max_pixels = Settings().max_pixels
     with tempfile.TemporaryDirectory() as work:
         path, model = benchmark_model(args.model, Path(work))
@@ -314,17 +345,20 @@ def main(argv: list[str] | None = None) -> int:
             for sample, description in frames:
                 paths = Paths(service.url, engine, sample, Path(work), max_pixels)
                 try:
-                    rows = summarise(measure(paths, args.rounds))
+                    rows = summarise(measure(paths, service.pid, args.rounds))
                 finally:
                     paths.close()
                 returns = int(np.count_nonzero(sample.sparse))
                 results[description] = {"returns": returns, "rows": rows}
                 print(description, json.dumps(rows, indent=1), flush=True)
-    write_report(args, model, meta, results)
+    load = {"before": load_before, "after": os.getloadavg()}
+    write_report(args, model, meta, results, load)
     return 0
 
 
-def write_report(args: argparse.Namespace, model: str, meta: dict, results: dict) -> None:
+def write_report(
+    args: argparse.Namespace, model: str, meta: dict, results: dict, load: dict
+) -> None:
     sections = []
     for description, result in results.items():
         sections.append(
@@ -339,7 +373,11 @@ same threads), {args.rounds} rounds, every path once per round in a rotating ord
 (for sdc-client: the whole process, Python start-up included; its own round-trip figure beside
 it); server phases are the service's medians. "bytes up / down": the request's tensors or body,
 and what the caller received (for Client.complete and tritonclient: the full-frame arrays they
-hand back).
+hand back). "CPU ms": mean CPU time per call of the server process and of the caller
+(for sdc-client: the process it starts). The machine's load average (1, 5, 15 min) was
+{_load(load["before"])} before the run and {_load(load["after"])} after it, on 2 cores: other
+jobs ran beside it, so wall times are slower than on a quiet machine; the interleaving puts that
+load on every path alike.
 
 Targets: Client.complete and tritonclient <= 1.25x the in-process pipeline at p50, POST /complete
 npz <= 1.5x.
@@ -352,8 +390,15 @@ npz <= 1.5x.
         )
     )
     (DOCS / "wire.json").write_text(
-        json.dumps({"model": model, "rounds": args.rounds, "frames": results}, indent=1)
+        json.dumps(
+            {"model": model, "rounds": args.rounds, "load_average": load, "frames": results},
+            indent=1,
+        )
     )
+
+
+def _load(values: tuple[float, float, float]) -> str:
+    return " / ".join(f"{v:.1f}" for v in values)
 
 
 if __name__ == "__main__":
