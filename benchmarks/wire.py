@@ -341,7 +341,8 @@ def main(argv: list[str] | None = None) -> int:
         log = Path(work) / "serve.log"
         with service_process(path, log, f"--threads={args.threads}") as service:
             meta = httpx.get(f"{service.url}/model").json()
-            engine = Engine(OnnxModel(path, "cpu", args.threads))
+            # the service's own session options: threads, and its idle threads sleeping
+            engine = Engine(OnnxModel(path, "cpu", args.threads, Settings().spin_wait))
             for sample, description in frames:
                 paths = Paths(service.url, engine, sample, Path(work), max_pixels)
                 try:

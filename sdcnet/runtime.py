@@ -18,6 +18,8 @@ from sdcnet.camera import Intrinsics
 INPUTS = ("gray", "sparse")
 OUTPUTS = ("depth", "foreground")
 PREFERRED_PROVIDERS = ("CUDAExecutionProvider", "CPUExecutionProvider")
+#: Session option: whether idle intra-op threads spin-wait for work ("1") or sleep ("0").
+SPIN_WAIT = "session.intra_op.allow_spinning"
 
 
 class ModelLoadError(RuntimeError):
@@ -83,7 +85,15 @@ def _info(session: ort.InferenceSession, path: Path) -> ModelInfo:
 class OnnxModel:
     """An sdcnet ONNX model loaded once; ``run`` is the pipeline's model callable."""
 
-    def __init__(self, path: str | Path, provider: str | None = None, threads: int | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        provider: str | None = None,
+        threads: int | None = None,
+        spin_wait: bool = True,
+    ):
+        """``spin_wait``: onnxruntime's idle intra-op threads spin (its default) rather than
+        sleep; the service turns it off (``sdcnet.service.settings.Settings.spin_wait``)."""
         path = Path(path)
         if not path.is_file():
             raise ModelLoadError(f"model file not found: {path}")
@@ -91,6 +101,7 @@ class OnnxModel:
         options.intra_op_num_threads = threads or len(os.sched_getaffinity(0))
         options.inter_op_num_threads = 1
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        options.add_session_config_entry(SPIN_WAIT, "1" if spin_wait else "0")
         try:
             self.session = ort.InferenceSession(
                 str(path), options, providers=choose_providers(provider)

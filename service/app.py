@@ -46,7 +46,9 @@ def load_model(settings: Settings) -> OnnxModel:
     if settings.model_path.is_dir():
         raise ModelLoadError(f"{settings.model_path} is a directory, not an ONNX model file")
     try:
-        model = OnnxModel(settings.model_path, settings.provider, settings.threads)
+        model = OnnxModel(
+            settings.model_path, settings.provider, settings.threads, settings.spin_wait
+        )
     except (ValueError, TypeError, KeyError) as exc:  # sdcnet metadata that does not parse
         raise ModelLoadError(
             f"{settings.model_path} is not a usable sdcnet model: its metadata does not parse "

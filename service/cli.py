@@ -48,6 +48,7 @@ FLAGS = [
     ("--model", "model_path", Path),
     ("--provider", "provider", str),
     ("--threads", "threads", int),
+    ("--spin-wait", "spin_wait", str),  # true / false, parsed by the settings
     ("--host", "host", str),
     ("--port", "port", int),
     ("--max-in-flight", "max_in_flight", int),

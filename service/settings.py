@@ -48,6 +48,12 @@ class Settings(BaseSettings):
         ge=1,
         description="onnxruntime intra-op threads (default: the CPUs this process may use)",
     )
+    spin_wait: bool = Field(
+        default=False,
+        description="let onnxruntime's idle threads spin-wait for work; off: they sleep and "
+        "leave the CPUs to the request's own decoding, encoding and HTTP, and to the other "
+        "processes of a shared machine or a CPU quota",
+    )
     host: str = Field(default="127.0.0.1", description="address to bind")
     port: int = Field(default=8000, ge=0, le=65535, description="TCP port (0: any free port)")
     max_in_flight: int = Field(

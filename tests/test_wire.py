@@ -22,7 +22,9 @@ from sdcnet.compact import depth_from_fp16, paste, unpack_mask
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
 from sdcnet.returns import returns_csv, returns_from_dense
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime import SPIN_WAIT, OnnxModel
+from sdcnet.service.app import load_model
+from sdcnet.service.settings import Settings
 
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 4 * 2**20
@@ -121,6 +123,16 @@ def test_request_parameters_reach_the_pipeline(url):
     assert (parameters["fx"], parameters["fy"], parameters["cx"]) == (2000.0, 2020.0, 100.5)
     assert parameters["outliers_removed"] == given["mask"].sum() - len(given["points"])
     assert not np.array_equal(given["points"][:10], plain["points"][:10])
+
+
+def test_the_service_lets_idle_onnxruntime_threads_sleep(model_path):
+    """Spinning threads took the CPUs the request's own work needed (benchmarks/wire)."""
+    settings = Settings(model_path=model_path, threads=1)
+    assert settings.spin_wait is False
+    options = load_model(settings).session.get_session_options()
+    assert options.get_session_config_entry(SPIN_WAIT) == "0"
+    spinning = load_model(Settings(model_path=model_path, threads=1, spin_wait=True))
+    assert spinning.session.get_session_options().get_session_config_entry(SPIN_WAIT) == "1"
 
 
 # -- compact inputs and answers ----------------------------------------------------------
