@@ -1,6 +1,7 @@
-"""Python API of the sdcnet service, on httpx: ``Client(url).complete(gray, sparse)``.
+"""Python API of the sdcnet service: ``Client(url).complete(gray, sparse)``.
 
-Needs numpy, OpenCV and httpx only (no torch, onnxruntime or FastAPI). Inputs may be arrays,
+Needs numpy and OpenCV only (no torch, onnxruntime or FastAPI; HTTP is the standard library's,
+``sdcnet.client.transport``). Inputs may be arrays,
 file paths or raw file bytes; the LIDAR returns may be a dense map or a list of returns. They
 travel compactly (``sdcnet.client.protocol``): the raw gray image and the returns as a list,
 over the service's Open Inference Protocol route, on one keep-alive connection; the answer
@@ -21,24 +22,15 @@ from pathlib import Path
 from typing import Any
 
 import cv2
-import httpx
 import numpy as np
 
 from sdcnet.client import protocol
+from sdcnet.client.transport import TRANSPORT_ERRORS, ConnectTimeoutError, Reply, Transport
 from sdcnet.pipeline import to_gray
 from sdcnet.returns import ReturnsError, check_returns, parse_returns_csv, returns_from_dense
 
 DEFAULT_URL = os.environ.get("SDCNET_URL", "http://127.0.0.1:8000")
 
-#: Transport failures worth another try: the request did not get through, or the answer was
-#: cut off. Completing a frame has no side effect, so a repeat is harmless.
-_RETRYABLE = (
-    httpx.ConnectError,
-    httpx.ConnectTimeout,
-    httpx.RemoteProtocolError,
-    httpx.ReadError,
-    httpx.WriteError,
-)
 
 Source = str | Path | bytes | np.ndarray
 
@@ -179,7 +171,7 @@ def returns_list(
         raise InputError(f"LIDAR returns: {exc}") from None
 
 
-def _error_of(response: httpx.Response) -> ServiceError:
+def _error_of(response: Reply) -> ServiceError:
     """The service's error: its own shape ``{"error": {"code", "message"}}``, or the
     Open Inference Protocol's ``{"error": "message"}`` with the code in a header."""
     status = response.status_code
@@ -214,9 +206,7 @@ class Client:
         self.retries = retries
         self.backoff_s = backoff_s
         self.max_backoff_s = max_backoff_s
-        self._http = httpx.Client(
-            base_url=self.url, timeout=httpx.Timeout(timeout_s, connect=min(timeout_s, 5.0))
-        )
+        self._http = Transport(self.url, timeout_s, connect_timeout_s=min(timeout_s, 5.0))
 
     def __enter__(self) -> Client:
         return self
@@ -234,7 +224,7 @@ class Client:
             wait = self.backoff_s * 2**attempt * random.uniform(0.5, 1.0)
         time.sleep(min(wait, self.max_backoff_s))
 
-    def _request(self, method: str, path: str, retry: bool = True, **kwargs) -> httpx.Response:
+    def _request(self, method: str, path: str, retry: bool = True, **kwargs) -> Reply:
         """The answer to one request, retried on connection errors and 503 when ``retry``;
         raises ``ServiceUnreachableError`` or ``ServiceError``."""
         attempts = self.retries + 1 if retry else 1
@@ -243,17 +233,23 @@ class Client:
             last = attempt == attempts - 1
             try:
                 response = self._http.request(method, path, **kwargs)
-            except _RETRYABLE as exc:
+            except TimeoutError as exc:
+                if not isinstance(exc, ConnectTimeoutError):  # a slow answer: not retried
+                    raise ServiceUnreachableError(
+                        f"no answer from {self.url}{path} within {self._http.timeout_s} s"
+                    ) from exc
+                unreachable = exc
+            except TRANSPORT_ERRORS as exc:  # refused, reset, cut off, unknown host
+                unreachable = exc
+            else:
+                unreachable = None
+            if unreachable is not None:
                 if last:
                     raise ServiceUnreachableError(
-                        f"cannot reach the sdcnet service at {self.url}: {exc or type(exc)}"
-                        " (is sdc-serve running there?)"
-                    ) from exc
+                        f"cannot reach the sdcnet service at {self.url}: "
+                        f"{unreachable or type(unreachable).__name__} (is sdc-serve running there?)"
+                    ) from unreachable
                 self._pause(attempt, None)
-            except httpx.TimeoutException as exc:
-                raise ServiceUnreachableError(
-                    f"no answer from {self.url}{path} within {self._http.timeout.read} s"
-                ) from exc
             else:
                 if response.status_code != 503 or last:
                     if response.is_error:

@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 
 import cv2
 import httpx
@@ -124,6 +125,17 @@ def test_concurrent_clients_retry_503_and_all_succeed(url):
     assert max(r.latency_s for r in results) >= 1.0  # ... after Retry-After: 1
 
 
+def test_a_kept_alive_connection_the_server_closed_is_replaced(url):
+    """uvicorn closes a connection idle for 5 s; the next request, even one that may not be
+    retried, goes out on a new connection."""
+    s = generated(256)
+    with Client(url, retries=0) as client:
+        first = client.complete(s.gray, s.sparse)
+        time.sleep(6)
+        assert client.health() == {"live": True, "ready": True}
+        np.testing.assert_array_equal(client.complete(s.gray, s.sparse).depth, first.depth)
+
+
 def test_a_missing_or_unreadable_file_exits_2(frame_files, tmp_path, capsys):
     gray, sparse = frame_files
     assert main(["infer", str(tmp_path / "nope.png"), str(sparse)]) == 2
@@ -222,10 +234,11 @@ def test_batch_of_a_manifest_and_of_a_dataset_split(url, frame_files, tiny_datas
     assert sorted(p.name for p in out.iterdir()) == sorted(test_ids)
 
 
-def test_the_client_imports_no_torch_onnxruntime_or_fastapi():
+def test_the_client_imports_no_torch_onnxruntime_fastapi_or_httpx():
     code = (
         "import sys, sdcnet.client.cli, sdcnet.client.api\n"
-        "heavy = {'torch', 'onnxruntime', 'fastapi', 'sdcnet.service'} & set(sys.modules)\n"
+        "heavy = {'torch', 'onnxruntime', 'fastapi', 'httpx', 'sdcnet.service'}\n"
+        "heavy &= set(sys.modules)\n"
         "assert not heavy, heavy\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
