@@ -18,7 +18,8 @@ of them alike):
   CSV of returns, writing its four files; its own round-trip figure is reported too;
 - **tritonclient.http**: Triton's client, binary tensors (gray UINT8, returns FP32) in, the
   full-frame depth, mask and points out;
-- **POST /complete**: a multipart form as curl sends it (gray PNG, returns ``.npy``), the
+- **POST /complete**: a multipart form as curl sends it (gray PNG, returns ``.npy``) on a
+  keep-alive connection of the standard library's ``http.client`` (as lean as curl), the
   answer as npz and as JSON, read whole; and, for comparison, the npz answer to the dense
   4 MiB ``.npy`` map the service used to need.
 
@@ -52,6 +53,7 @@ import tritonclient.http as triton
 from benchmarks.common import DOCS, cpu_description, write_markdown
 from benchmarks.service_latency import server_timing
 from sdcnet.client.api import Client
+from sdcnet.client.transport import Transport
 from sdcnet.dataset_format import Sample, SampleStore, read_sample
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_csv, returns_from_dense
@@ -143,7 +145,8 @@ class Paths:
         self.returns = returns_from_dense(sample.sparse)
         self.client = Client(url)
         self.triton = triton.InferenceServerClient(url.removeprefix("http://"))
-        self.http = httpx.Client(base_url=url, timeout=120)
+        # curl's part: a lean keep-alive HTTP/1.1 connection (the standard library's)
+        self.http = Transport(url, timeout_s=120, connect_timeout_s=5)
         gray_png = png_bytes(sample.gray)
         self.files = work / "gray.png", work / "returns.csv", work / "out"
         self.files[0].write_bytes(gray_png)
@@ -226,17 +229,18 @@ class Paths:
 
     def form(self, body: tuple[bytes, str], answer: str) -> Shot:
         start = time.perf_counter()
-        response = self.http.post(
+        response = self.http.request(
+            "POST",
             "/complete",
             content=body[0],
             headers={"content-type": body[1]},
             params={"format": answer},
         )
-        content = response.read()
         seconds = time.perf_counter() - start
-        response.raise_for_status()
+        if response.is_error:
+            raise RuntimeError(f"POST /complete answered {response.status_code}: {response.text}")
         phases = server_timing(response.headers.get("server-timing"))
-        return Shot(seconds, phases, len(body[0]), len(content))
+        return Shot(seconds, phases, len(body[0]), len(response.content))
 
 
 def measure(paths: Paths, server_pid: int, rounds: int, warmup: int = 2) -> dict[str, list[Shot]]:
