@@ -69,7 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     methods = {"PyTorch eager FP32": (torch_model_fn(model), model.config.stride)}
     for name, runner in onnx_variants(args.onnx, args.threads).items():
         methods[name] = (runner.run, runner.stride)
-    methods["classical fill (floor)"] = (torch_model_fn(ClassicalFill()), 64)
+    fill = ClassicalFill()
+    methods["classical fill (floor)"] = (torch_model_fn(fill), fill.stride)
     results, latency = {}, {}
     for name, (fn, stride) in methods.items():
         table, ms = measure(fn, stride, store, records)

@@ -125,3 +125,156 @@ def mask_error_bands(pred_mask: np.ndarray, gt_depth: np.ndarray) -> dict[str, f
         "fn_edge": float((wrong & edge & A).sum() / union),
         "IOU_off_edge": float((A & P & ~edge).sum() / off_union) if off_union else np.nan,
     }
+
+
+# --- Depth where it is used: beside the classical fill, near and far from the returns ----------
+
+#: Bands of distance to the nearest LIDAR return, pixels: (0, 3], (3, 6], (6, 10], (10, inf).
+DISTANCE_BANDS_PX = (3.0, 6.0, 10.0)
+BAND_NAMES = ("0-3px", "3-6px", "6-10px", ">10px")
+#: A normal counts as right within this angle (degrees), the usual threshold of normal benchmarks.
+NORMAL_GOOD_DEG = 11.25
+#: Pixels this close to the outline of the foreground, or to a depth edge, have no reliable normal.
+NORMAL_MARGIN_PX = 3
+#: A depth edge: Z changes faster than this many pixel footprints (Z / f) per pixel, i.e. a surface
+#: steeper than ~84 degrees to the line of sight, or a jump between two surfaces.
+DEPTH_EDGE_SLOPE = 10.0
+
+
+def distance_to_returns(sparse: np.ndarray) -> np.ndarray:
+    """Euclidean distance in pixels from each pixel to the nearest LIDAR return (float32 H x W);
+    +inf everywhere when there is none."""
+    if not (sparse > 0).any():
+        return np.full(sparse.shape, np.inf, np.float32)
+    return cv2.distanceTransform((sparse <= 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def band_index(distance: np.ndarray) -> np.ndarray:
+    """Index into ``BAND_NAMES`` of each distance (pixels)."""
+    return np.searchsorted(np.asarray(DISTANCE_BANDS_PX), distance, side="left")
+
+
+def same_pixel_errors(
+    pred_depth: np.ndarray,
+    pred_mask: np.ndarray,
+    fill_depth: np.ndarray,
+    fill_mask: np.ndarray,
+    gt_depth: np.ndarray,
+    sparse: np.ndarray,
+) -> dict[str, float]:
+    """Depth MAE (metres) of a prediction and of the classical fill on the same pixels: the
+    predicted ∩ filled ∩ true foreground, overall (``MAE``, ``fill_MAE``) and per band of distance
+    to the nearest LIDAR return (``MAE_0-3px``, ``fill_MAE_0-3px``, ...). NaN where a set is empty.
+
+    The paper's MAEI averages over the predicted foreground, where a fill has no answer far from
+    the returns; comparing on the pixels both answer shows whether the network beats the fill at
+    what the fill does, and the bands show whether it keeps what was measured (near a return) and
+    interpolates well between returns (far from them).
+    """
+    common = pred_mask.astype(bool) & fill_mask.astype(bool) & (gt_depth > 0)
+    gt = gt_depth.astype(np.float64)
+    err = np.abs(pred_depth - gt)
+    fill_err = np.abs(fill_depth - gt)
+    band = band_index(distance_to_returns(sparse))
+
+    def mean(values: np.ndarray, where: np.ndarray) -> float:
+        return float(values[where].mean()) if where.any() else float("nan")
+
+    out = {"MAE": mean(err, common), "fill_MAE": mean(fill_err, common)}
+    for i, name in enumerate(BAND_NAMES):
+        out[f"MAE_{name}"] = mean(err, common & (band == i))
+        out[f"fill_MAE_{name}"] = mean(fill_err, common & (band == i))
+    return out
+
+
+def surface_normals(depth: np.ndarray, intrinsics) -> np.ndarray:
+    """Unit normals (H x W x 3, camera frame) of the surface a depth map (metres) describes:
+    the cross product of the back-projected points' central differences along rows and columns,
+    oriented towards the camera. Only meaningful where the 3 x 3 neighbourhood is on one surface.
+    """
+    H, W = depth.shape
+    z = depth.astype(np.float64)
+    u = np.arange(W, dtype=np.float64)[None, :]
+    v = np.arange(H, dtype=np.float64)[:, None]
+    points = np.stack(
+        [(u - intrinsics.cx) * z / intrinsics.fx, (v - intrinsics.cy) * z / intrinsics.fy, z], -1
+    )
+    du = np.zeros_like(points)
+    dv = np.zeros_like(points)
+    du[:, 1:-1] = points[:, 2:] - points[:, :-2]
+    dv[1:-1] = points[2:] - points[:-2]
+    normal = np.cross(du, dv)
+    normal *= -np.sign(np.sum(normal * points, -1, keepdims=True) + 1e-300)  # face the camera
+    norm = np.linalg.norm(normal, axis=-1, keepdims=True)
+    return normal / np.maximum(norm, 1e-300)
+
+
+def depth_edges(depth: np.ndarray, intrinsics) -> np.ndarray:
+    """Boolean H x W: pixels where the depth (metres) changes by more than ``DEPTH_EDGE_SLOPE``
+    pixel footprints per pixel towards a neighbour, or that border the background."""
+    z = depth.astype(np.float64)
+    footprint = np.maximum(z, 1e-6) / intrinsics.fx
+    edge = np.zeros(z.shape, bool)
+    for axis in (0, 1):
+        step = np.abs(np.diff(z, axis=axis))
+        jump = step > DEPTH_EDGE_SLOPE * np.minimum(
+            footprint.take(range(z.shape[axis] - 1), axis),
+            footprint.take(range(1, z.shape[axis]), axis),
+        )
+        if axis == 0:
+            edge[:-1] |= jump
+            edge[1:] |= jump
+        else:
+            edge[:, :-1] |= jump
+            edge[:, 1:] |= jump
+    return edge | (z <= 0)
+
+
+def normal_errors(
+    pred_depth: np.ndarray, pred_mask: np.ndarray, gt_depth: np.ndarray, intrinsics
+) -> dict[str, float]:
+    """Angle (degrees) between the normals of the predicted and the true depth map on the
+    interior of predicted ∩ true foreground, ``NORMAL_MARGIN_PX`` away from the outline and from
+    the true depth edges: ``normal_mean_deg``, ``normal_median_deg`` and ``normal_within_11.25``
+    (share of pixels within 11.25 degrees), NaN when no pixel qualifies.
+
+    A point cloud must be flat where the spacecraft is flat: a ripple between scan lines that
+    MAE barely sees tilts the normals by degrees.
+    """
+    region = pred_mask.astype(bool) & (gt_depth > 0) & (pred_depth > 0)
+    unsure = depth_edges(gt_depth, intrinsics) | ~region
+    unsure[[0, -1]] = unsure[:, [0, -1]] = True  # the image's border has no central difference
+    size = 2 * NORMAL_MARGIN_PX + 1
+    interior = ~cv2.dilate(unsure.astype(np.uint8), np.ones((size, size), np.uint8)).astype(bool)
+    if not interior.any():
+        return {
+            "normal_mean_deg": np.nan,
+            "normal_median_deg": np.nan,
+            "normal_within_11.25": np.nan,
+        }
+    dot = np.sum(
+        surface_normals(pred_depth, intrinsics)[interior]
+        * surface_normals(gt_depth, intrinsics)[interior],
+        -1,
+    )
+    angle = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
+    return {
+        "normal_mean_deg": float(angle.mean()),
+        "normal_median_deg": float(np.median(angle)),
+        "normal_within_11.25": float((angle <= NORMAL_GOOD_DEG).mean()),
+    }
+
+
+def false_specks(pred_mask: np.ndarray, sparse: np.ndarray, gt_depth: np.ndarray) -> int:
+    """Predicted foreground components (8-connected) that hold no LIDAR return and are not part
+    of the spacecraft (less than half of their pixels on the true foreground): stars and noise
+    taken for the target, each one a point of the cloud far from it. Parts of the spacecraft that
+    look detached and have no return are not specks."""
+    count, labels = cv2.connectedComponents(pred_mask.astype(np.uint8), connectivity=8)
+    if count <= 1:
+        return 0
+    size = np.bincount(labels.ravel(), minlength=count)
+    on_target = np.bincount(labels.ravel(), weights=(gt_depth > 0).ravel(), minlength=count)
+    with_return = np.bincount(labels.ravel(), weights=(sparse > 0).ravel(), minlength=count) > 0
+    speck = (~with_return) & (on_target < 0.5 * size)
+    return int(speck[1:].sum())

@@ -50,8 +50,9 @@ def _aligned(lo: float, hi: float, size: int, stride: int) -> tuple[int, int]:
     return lo, lo + length
 
 
-def region_of_interest(sparse: np.ndarray, stride: int = 64) -> Region:
-    """Region holding the spacecraft, from its LIDAR returns; the whole frame if none."""
+def region_of_interest(sparse: np.ndarray, stride: int) -> Region:
+    """Region holding the spacecraft, from its LIDAR returns; the whole frame if none. Its
+    sides are multiples of ``stride`` pixels (the model's) where the frame allows."""
     H, W = sparse.shape
     rows, cols = np.nonzero(sparse > 0)
     if len(rows) == 0:
@@ -121,7 +122,7 @@ def complete(
     model: ModelFn,
     gray: np.ndarray,
     sparse: np.ndarray,
-    stride: int = 64,
+    stride: int,
     threshold: float = 0.5,
     zoom: float = 1.0,
 ) -> Completion:

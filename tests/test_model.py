@@ -7,7 +7,11 @@ import torch
 from sdcnet.dataset_format import SampleStore
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.dataset import TileDataset
-from sdcnet.training.losses import foreground_depth_loss, segmentation_loss
+from sdcnet.training.losses import (
+    depth_gradient_loss,
+    foreground_depth_loss,
+    segmentation_loss,
+)
 from sdcnet.training.model.cca import CrossChannelAttention
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
 from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet
@@ -49,7 +53,7 @@ def test_fsnet_input_choices_of_table_4(inputs):
 
 
 def test_cca_weights_and_attention_do_not_depend_on_input_size():
-    cca = CrossChannelAttention(16, grid=4, heads=4)
+    cca = CrossChannelAttention(channels=16, grid=4, heads=4)
     shapes = {k: v.shape for k, v in cca.state_dict().items()}
     for size in ((16, 16), (32, 48), (64, 24)):
         f_s, f_g = torch.rand(2, 16, *size), torch.rand(2, 16, *size)
@@ -137,3 +141,15 @@ def test_a_few_optimisation_steps_reduce_both_losses(tiny_dataset):
         opt.step()
         depth_losses.append(loss.item())
     assert depth_losses[-1] < 0.8 * depth_losses[0]
+
+
+def test_gradient_loss_sees_a_ripple_the_l1_loss_forgives():
+    gt = torch.full((1, 1, 4, 4), 100.0)
+    ripple = gt + torch.tensor([0.01, -0.01, 0.01, -0.01]).reshape(1, 1, 4, 1)  # rows alternate
+    prob = torch.ones(1, 1, 4, 4)
+    assert foreground_depth_loss(ripple, prob, gt).item() == pytest.approx(0.01, rel=1e-3)
+    # 12 vertical pairs step by 0.02 m, 12 horizontal pairs do not step: mean 0.01 m per pixel
+    assert depth_gradient_loss(ripple, prob, gt).item() == pytest.approx(0.01, rel=1e-3)
+    assert depth_gradient_loss(gt + 0.5, prob, gt).item() == pytest.approx(0.0, abs=1e-5)
+    prob[..., :2, :] = 0  # the last two rows: 4 vertical pairs (0.02 m off), 6 horizontal ones
+    assert depth_gradient_loss(ripple, prob, gt).item() == pytest.approx(4 * 0.02 / 10, rel=1e-3)

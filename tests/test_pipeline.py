@@ -32,14 +32,14 @@ def test_region_holds_every_return_and_is_aligned():
     assert region.x0 <= cols.min() and cols.max() < region.x1
     assert region.shape[0] % 64 == 0 and region.shape[1] % 64 == 0
     assert region.shape[0] < 1024, "cropped, not the whole frame"
-    empty = region_of_interest(np.zeros((100, 80), np.float32))
+    empty = region_of_interest(np.zeros((100, 80), np.float32), stride=64)
     assert empty.shape == (100, 80)
 
 
 def test_complete_runs_on_the_crop_and_pastes_back():
     gray, sparse = frame()
     calls = []
-    result = complete(bright_model(calls), gray, sparse)
+    result = complete(bright_model(calls), gray, sparse, stride=64)
     ((shape, returns),) = calls
     assert shape[2:] == result.region.shape and returns == np.count_nonzero(sparse)
     np.testing.assert_array_equal(result.mask, gray > 127)
@@ -53,14 +53,14 @@ def test_zoom_resamples_the_crop_for_the_network_and_answers_at_image_resolution
     sparse = np.zeros((512, 512), np.float32)
     sparse[200:300:9, 150:350:6] = 120.0
     calls = []
-    result = complete(bright_model(calls), gray, sparse, zoom=2.0)
+    result = complete(bright_model(calls), gray, sparse, stride=64, zoom=2.0)
     ((shape, returns),) = calls
     assert shape[2:] == (2 * result.region.shape[0], 2 * result.region.shape[1])
     assert returns == np.count_nonzero(sparse), "every return kept once"
     assert result.mask.shape == (512, 512)
     assert abs(int(result.mask.sum()) - 100 * 200) < 0.02 * 100 * 200
     with pytest.raises(ValueError, match="zoom"):
-        complete(bright_model([]), gray, sparse, zoom=0)
+        complete(bright_model([]), gray, sparse, stride=64, zoom=0)
 
 
 def test_resample_sparse_keeps_returns_and_the_nearest_wins():

@@ -59,7 +59,8 @@ def _methods(args: argparse.Namespace) -> dict[str, tuple]:
         onnx_model = OnnxModel(args.onnx)
         methods[f"onnx:{Path(args.onnx).name}"] = (onnx_model.run, onnx_model.stride)
     if args.floor:
-        methods["classical fill"] = (torch_model_fn(ClassicalFill()), 64)
+        fill = ClassicalFill()
+        methods["classical fill"] = (torch_model_fn(fill), fill.stride)
     if not methods:
         raise ValueError("nothing to evaluate: give --checkpoint, --onnx or --floor")
     return methods
@@ -193,6 +194,7 @@ def parser() -> argparse.ArgumentParser:
         ("tile", int),
         ("lr", float),
         ("weight_decay", float),
+        ("gradient_loss", float),
         ("samples_per_epoch", int),
         ("val_samples", int),
         ("workers", int),

@@ -58,6 +58,7 @@ class ClassicalFill(torch.nn.Module):
     def __init__(self, factor: int = 4):
         super().__init__()
         self.factor = factor
+        self.stride = factor  # crops need only be whole working pixels
         self.prefill = MorphologicalPrefill()
 
     def forward(
@@ -75,7 +76,7 @@ def evaluate_records(
     model_fn: ModelFn,
     store: SampleStore,
     records: list[dict],
-    stride: int = 64,
+    stride: int,
     progress: bool = True,
     desc: str = "evaluate",
 ) -> MetricTable:
@@ -86,7 +87,3 @@ def evaluate_records(
         result = complete(model_fn, sample.gray, sample.sparse, stride=stride)
         table.add(frame_metrics(result.depth, result.mask, sample.depth))
     return table
-
-
-def stride_of(model: torch.nn.Module) -> int:
-    return model.config.stride if isinstance(model, SDCNet) else 64

@@ -15,7 +15,7 @@ import platform
 import shlex
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
 
@@ -36,8 +36,13 @@ from sdcnet.training.evaluate import (
     torch_model_fn,
     torch_segmentation_fn,
 )
-from sdcnet.training.losses import dense_depth_loss, foreground_depth_loss, segmentation_loss
-from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet
+from sdcnet.training.losses import (
+    dense_depth_loss,
+    depth_gradient_loss,
+    foreground_depth_loss,
+    segmentation_loss,
+)
+from sdcnet.training.model.sdcnet import ModelConfig, SDCNet, build_model
 
 
 class Segmenter(torch.nn.Module):
@@ -66,6 +71,7 @@ class TrainConfig:
     tile: int = 512
     lr: float = 1e-3
     weight_decay: float = 1e-3
+    gradient_loss: float = 1.0  # weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)
     samples_per_epoch: int | None = None  # None: the whole train split every epoch
     val_samples: int | None = None  # None: the whole val split
     workers: int = 2
@@ -156,16 +162,11 @@ class Trainer:
         self.val_records = self.store.split("val") or train[:2]
         if config.val_samples:
             self.val_records = evenly_spread(self.val_records, config.val_samples)
-        variant = VARIANTS.get(config.variant)
-        if variant is None:
-            raise ValueError(
-                f"unknown variant {config.variant!r}; choose one of {sorted(VARIANTS)}"
-            )
-        self.model = SDCNet(replace(variant, fsnet_inputs=config.fsnet_inputs)).to(self.device)
+        self.model = build_model(config.variant, fsnet_inputs=config.fsnet_inputs).to(self.device)
         self.train_set = TileDataset(
             self.store,
             train,
-            config.tile,
+            tile=config.tile,
             augment=True,
             seed=config.seed,
             stride=self.model.config.stride,
@@ -268,7 +269,12 @@ class Trainer:
         depth, prob = net(batch["gray"], batch["sparse"])
         if self.model.fsnet is None:
             return dense_depth_loss(depth, batch["depth"])
-        return foreground_depth_loss(depth, prob, batch["depth"])
+        loss = foreground_depth_loss(depth, prob, batch["depth"])
+        if self.config.gradient_loss:
+            loss = loss + self.config.gradient_loss * depth_gradient_loss(
+                depth, prob, batch["depth"]
+            )
+        return loss
 
     def _train_epoch(self, stage: int, epoch: int, optimizer, net) -> float:
         self.model.train()
