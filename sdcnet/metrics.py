@@ -12,10 +12,12 @@ Undefined values are left out of the mean over images and counted (``MetricTable
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
+
+from sdcnet.camera import Intrinsics
 
 ALPHA_M = 10.0
 NAMES = ("IOU", "IOI", "MAEI", "MATE", "RMSEI", "RMSTE")
@@ -58,17 +60,22 @@ class MetricTable:
     def __len__(self) -> int:
         return len(self.rows)
 
+    @property
+    def names(self) -> list[str]:
+        """The metrics the rows hold, in the order of the first row."""
+        return list(self.rows[0]) if self.rows else list(NAMES)
+
     def mean(self) -> dict[str, float]:
         """Mean over images of each metric, leaving out undefined values (NaN if all are)."""
         means = {}
-        for k in NAMES:
+        for k in self.names:
             values = np.array([r[k] for r in self.rows], dtype=np.float64)
             defined = values[~np.isnan(values)]
             means[k] = float(defined.mean()) if defined.size else float("nan")
         return means
 
     def undefined(self) -> dict[str, int]:
-        return {k: int(sum(np.isnan(r[k]) for r in self.rows)) for k in NAMES}
+        return {k: int(sum(np.isnan(r[k]) for r in self.rows)) for k in self.names}
 
 
 def markdown_table(
@@ -132,6 +139,7 @@ def mask_error_bands(pred_mask: np.ndarray, gt_depth: np.ndarray) -> dict[str, f
 #: Bands of distance to the nearest LIDAR return, pixels: (0, 3], (3, 6], (6, 10], (10, inf).
 DISTANCE_BANDS_PX = (3.0, 6.0, 10.0)
 BAND_NAMES = ("0-3px", "3-6px", "6-10px", ">10px")
+NORMAL_NAMES = ("normal_mean_deg", "normal_median_deg", "normal_within_11.25")
 #: A normal counts as right within this angle (degrees), the usual threshold of normal benchmarks.
 NORMAL_GOOD_DEG = 11.25
 #: Pixels this close to the outline of the foreground, or to a depth edge, have no reliable normal.
@@ -187,7 +195,7 @@ def same_pixel_errors(
     return out
 
 
-def surface_normals(depth: np.ndarray, intrinsics) -> np.ndarray:
+def surface_normals(depth: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """Unit normals (H x W x 3, camera frame) of the surface a depth map (metres) describes:
     the cross product of the back-projected points' central differences along rows and columns,
     oriented towards the camera. Only meaningful where the 3 x 3 neighbourhood is on one surface.
@@ -209,7 +217,7 @@ def surface_normals(depth: np.ndarray, intrinsics) -> np.ndarray:
     return normal / np.maximum(norm, 1e-300)
 
 
-def depth_edges(depth: np.ndarray, intrinsics) -> np.ndarray:
+def depth_edges(depth: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """Boolean H x W: pixels where the depth (metres) changes by more than ``DEPTH_EDGE_SLOPE``
     pixel footprints per pixel towards a neighbour, or that border the background."""
     z = depth.astype(np.float64)
@@ -231,7 +239,7 @@ def depth_edges(depth: np.ndarray, intrinsics) -> np.ndarray:
 
 
 def normal_errors(
-    pred_depth: np.ndarray, pred_mask: np.ndarray, gt_depth: np.ndarray, intrinsics
+    pred_depth: np.ndarray, pred_mask: np.ndarray, gt_depth: np.ndarray, intrinsics: Intrinsics
 ) -> dict[str, float]:
     """Angle (degrees) between the normals of the predicted and the true depth map on the
     interior of predicted ∩ true foreground, ``NORMAL_MARGIN_PX`` away from the outline and from
@@ -247,22 +255,15 @@ def normal_errors(
     size = 2 * NORMAL_MARGIN_PX + 1
     interior = ~cv2.dilate(unsure.astype(np.uint8), np.ones((size, size), np.uint8)).astype(bool)
     if not interior.any():
-        return {
-            "normal_mean_deg": np.nan,
-            "normal_median_deg": np.nan,
-            "normal_within_11.25": np.nan,
-        }
+        return dict.fromkeys(NORMAL_NAMES, float("nan"))
     dot = np.sum(
         surface_normals(pred_depth, intrinsics)[interior]
         * surface_normals(gt_depth, intrinsics)[interior],
         -1,
     )
     angle = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
-    return {
-        "normal_mean_deg": float(angle.mean()),
-        "normal_median_deg": float(np.median(angle)),
-        "normal_within_11.25": float((angle <= NORMAL_GOOD_DEG).mean()),
-    }
+    values = (angle.mean(), np.median(angle), (angle <= NORMAL_GOOD_DEG).mean())
+    return {name: float(v) for name, v in zip(NORMAL_NAMES, values, strict=True)}
 
 
 def false_specks(pred_mask: np.ndarray, sparse: np.ndarray, gt_depth: np.ndarray) -> int:
@@ -278,3 +279,71 @@ def false_specks(pred_mask: np.ndarray, sparse: np.ndarray, gt_depth: np.ndarray
     with_return = np.bincount(labels.ravel(), weights=(sparse > 0).ravel(), minlength=count) > 0
     speck = (~with_return) & (on_target < 0.5 * size)
     return int(speck[1:].sum())
+
+
+#: The metrics of ``frame_report`` beyond the paper's six, in table order.
+DEPTH_NAMES = (
+    "MAE",
+    "fill_MAE",
+    *(f"{who}MAE_{band}" for band in BAND_NAMES for who in ("", "fill_")),
+    *NORMAL_NAMES,
+    "specks",
+)
+
+
+def frame_report(
+    pred_depth: np.ndarray,
+    pred_mask: np.ndarray,
+    fill_depth: np.ndarray,
+    fill_mask: np.ndarray,
+    gt_depth: np.ndarray,
+    sparse: np.ndarray,
+    intrinsics: Intrinsics,
+) -> dict[str, float]:
+    """Every metric of one image: the paper's six, depth on the classical fill's pixels by
+    distance to the returns, normals and false specks. Depths in metres, masks boolean."""
+    report = frame_metrics(pred_depth, pred_mask, gt_depth)
+    report |= same_pixel_errors(pred_depth, pred_mask, fill_depth, fill_mask, gt_depth, sparse)
+    # Normals only where the spacecraft is: a crop around everything that is foreground
+    rows, cols = np.nonzero((gt_depth > 0) | pred_mask)
+    if len(rows):
+        y0, x0 = max(rows.min() - 1, 0), max(cols.min() - 1, 0)
+        window = (slice(y0, rows.max() + 2), slice(x0, cols.max() + 2))
+        shifted = replace(intrinsics, cx=intrinsics.cx - x0, cy=intrinsics.cy - y0)
+        report |= normal_errors(pred_depth[window], pred_mask[window], gt_depth[window], shifted)
+    else:
+        report |= dict.fromkeys(NORMAL_NAMES, float("nan"))
+    report["specks"] = float(false_specks(pred_mask, sparse, gt_depth))
+    return report
+
+
+def depth_table(results: dict[str, dict[str, float]]) -> str:
+    """Markdown: each method's depth MAE on the pixels it shares with the classical fill, the
+    fill's own in brackets, overall and by distance to the nearest return (metres); normal
+    errors (degrees) and false specks per image."""
+
+    def pair(m: dict[str, float], key: str) -> str:
+        own, fill = m.get(key, np.nan), m.get(f"fill_{key}", np.nan)
+        return "n/a" if np.isnan(own) else f"{own:.3f} ({fill:.3f})"
+
+    def num(value: float, fmt: str) -> str:
+        return "n/a" if np.isnan(value) else format(value, fmt)
+
+    bands = " | ".join(f"{b} m" for b in BAND_NAMES)
+    lines = [
+        f"| method | MAE m (fill) | {bands} | normal mean ° | median ° | within 11.25° % "
+        "| specks / image |",
+        "|---|---|" + "---|" * len(BAND_NAMES) + "---|---|---|---|",
+    ]
+    for name, m in results.items():
+        if "MAE" not in m:
+            continue
+        cells = [pair(m, "MAE"), *(pair(m, f"MAE_{b}") for b in BAND_NAMES)]
+        cells += [
+            num(m["normal_mean_deg"], ".1f"),
+            num(m["normal_median_deg"], ".1f"),
+            num(100 * m["normal_within_11.25"], ".0f"),
+            num(m["specks"], ".2f"),
+        ]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

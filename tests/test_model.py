@@ -11,6 +11,7 @@ from sdcnet.training.losses import (
     depth_gradient_loss,
     foreground_depth_loss,
     segmentation_loss,
+    soft_iou_loss,
 )
 from sdcnet.training.model.cca import CrossChannelAttention
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
@@ -153,3 +154,12 @@ def test_gradient_loss_sees_a_ripple_the_l1_loss_forgives():
     assert depth_gradient_loss(gt + 0.5, prob, gt).item() == pytest.approx(0.0, abs=1e-5)
     prob[..., :2, :] = 0  # the last two rows: 4 vertical pairs (0.02 m off), 6 horizontal ones
     assert depth_gradient_loss(ripple, prob, gt).item() == pytest.approx(4 * 0.02 / 10, rel=1e-3)
+
+
+def test_soft_iou_loss_is_one_minus_the_iou_of_a_hard_mask():
+    gt = torch.zeros(1, 1, 4, 4)
+    gt[..., :2, :] = 50.0  # 8 pixels of foreground
+    prob = torch.zeros(1, 1, 4, 4)
+    prob[..., 1:3, :] = 1.0  # 8 pixels predicted, 4 right: IOU 4 / 12
+    assert soft_iou_loss(prob, gt).item() == pytest.approx(1 - 4 / 12)
+    assert soft_iou_loss((gt > 0).float(), gt).item() == pytest.approx(0.0)

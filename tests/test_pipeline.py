@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sdcnet.pipeline import complete, region_of_interest, resample_sparse
+from sdcnet.pipeline import complete, drop_specks, region_of_interest, resample_sparse
 
 
 def frame(size: int = 1024, spacing: tuple[int, int] = (18, 12)):
@@ -70,3 +70,31 @@ def test_resample_sparse_keeps_returns_and_the_nearest_wins():
     assert small[0, 0] == 40.0 and small[2, 3] == 70.0 and np.count_nonzero(small) == 2
     big = resample_sparse(sparse, (16, 16))
     assert sorted(big[big > 0]) == [40.0, 50.0, 70.0]
+
+
+def test_stars_are_dropped_and_detached_parts_near_the_returns_kept():
+    mask = np.zeros((200, 200), bool)
+    sparse = np.zeros((200, 200), np.float32)
+    mask[50:90, 50:90] = True  # the body
+    sparse[60, 60] = 100.0
+    mask[95:97, 50:90] = True  # a boom 5 px from the body, no return
+    mask[110:112, 50:90] = True  # and its continuation 13 px further: kept hop by hop
+    mask[150:153, 170:173] = True  # a star 60 px away
+    mask[40, 95] = True  # a speck 10 px off the body's corner
+    kept = drop_specks(mask, sparse, keep_distance_px=16.0)
+    assert kept[50:90, 50:90].all() and kept[95:97].any() and kept[110:112, 50:90].all()
+    assert not kept[150:153, 170:173].any()
+    assert kept[40, 95]  # within reach of the body: taken for a part, kept
+    edge_return = np.zeros_like(sparse)
+    edge_return[49, 70] = 100.0  # a return one pixel outside the predicted outline
+    assert drop_specks(mask, edge_return, 16.0)[50:90, 50:90].all()
+    assert not drop_specks(mask, np.zeros_like(sparse), 16.0).any()
+
+
+def test_complete_drops_stars_from_the_mask_and_the_depth():
+    gray, sparse = frame()
+    gray[300:303, 210:213] = 255  # a star inside the crop, ~100 px from every return
+    result = complete(bright_model([]), gray, sparse, stride=64)
+    assert result.region.y0 < 300 and result.region.x0 < 210
+    assert not result.mask[300:303, 210:213].any() and (result.depth[300:303, 210:213] == 0).all()
+    assert result.mask[420:580, 320:680].all()

@@ -96,9 +96,13 @@ def test_evaluate_prints_the_table_with_the_floor_and_writes_the_card(
     )
     out = capsys.readouterr().out
     assert "| classical fill |" in out and "| sdcnet |" in out
+    assert "| MAE m (fill) | 0-3px m |" in out  # the depth table beside the paper's
     results = json.loads(report.read_text())["results"]
     floor = results["classical fill"]  # 256 px frames: denser returns than the kernels expect
     assert 0.2 < floor["IOU"] <= 1.0 and floor["MAEI"] < 1.0
+    assert floor["MAE"] == pytest.approx(floor["fill_MAE"])  # the fill on its own pixels
+    assert 0 < floor["normal_mean_deg"] < 90 and 0 <= floor["normal_within_11.25"] <= 1
+    assert results["sdcnet"]["specks"] >= 0
     card = tmp_path / "card.md"
     assert (
         train_main(

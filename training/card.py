@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 
-from sdcnet.metrics import markdown_table
+from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.model.sdcnet import SDCNet
 
 
@@ -100,6 +100,15 @@ def model_card(
             markdown_table(report["results"]),
             "",
         ]
+        if any("MAE" in m for m in report["results"].values()):
+            lines += [
+                "Depth on the pixels each method shares with the classical fill (the fill's own "
+                "error in brackets), by distance to the nearest LIDAR return; normals on the "
+                "interior of true ∩ predicted foreground; false specks per image:",
+                "",
+                depth_table(report["results"]),
+                "",
+            ]
         undefined = {k: v for k, v in report.get("undefined", {}).items() if any(v.values())}
         if undefined:
             lines += [f"Images left out of a mean for an empty set: {json.dumps(undefined)}", ""]

@@ -10,7 +10,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from sdcnet.dataset_format import SampleStore, evenly_spread
-from sdcnet.metrics import markdown_table
+from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.data.generate import GenerateConfig, generate
@@ -97,11 +97,13 @@ def cmd_real(args: argparse.Namespace) -> int:
         "",
         markdown_table(overall),
         "",
+        depth_table(overall),
+        "",
     ]
     first = next(iter(per_method))
     for name in sorted(k for k in per_method[first] if k != "all"):
         rows = {method: tables[name].mean() for method, tables in per_method.items()}
-        lines += [f"### {name}", "", markdown_table(rows), ""]
+        lines += [f"### {name}", "", markdown_table(rows), "", depth_table(rows), ""]
     (out / "real_spacecraft.md").write_text("\n".join(lines))
     (out / "real_spacecraft.json").write_text(
         json.dumps(
@@ -135,7 +137,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         results[name], counts[name], undefined[name] = table.mean(), len(table), table.undefined()
         if args.segmentation_only:
             results[name] = mask_metrics_only(results[name])
-    text = markdown_table(results, counts)
+    text = markdown_table(results, counts) + "\n\n" + depth_table(results)
     print(f"{args.split} split of {args.data}: {len(records)} images, mean over images\n")
     print(text)
     for name, u in undefined.items():
@@ -195,6 +197,7 @@ def parser() -> argparse.ArgumentParser:
         ("lr", float),
         ("weight_decay", float),
         ("gradient_loss", float),
+        ("iou_loss", float),
         ("samples_per_epoch", int),
         ("val_samples", int),
         ("workers", int),

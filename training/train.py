@@ -41,6 +41,7 @@ from sdcnet.training.losses import (
     depth_gradient_loss,
     foreground_depth_loss,
     segmentation_loss,
+    soft_iou_loss,
 )
 from sdcnet.training.model.sdcnet import ModelConfig, SDCNet, build_model
 
@@ -72,6 +73,7 @@ class TrainConfig:
     lr: float = 1e-3
     weight_decay: float = 1e-3
     gradient_loss: float = 1.0  # weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)
+    iou_loss: float = 0.0  # weight of a soft-IOU term beside eq. 6's BCE (stage 1)
     samples_per_epoch: int | None = None  # None: the whole train split every epoch
     val_samples: int | None = None  # None: the whole val split
     workers: int = 2
@@ -265,7 +267,11 @@ class Trainer:
 
     def _loss(self, stage: int, batch: dict[str, torch.Tensor], net) -> torch.Tensor:
         if stage == 1:  # net is a Segmenter
-            return segmentation_loss(net(batch["gray"], batch["sparse"]), batch["depth"])
+            prob = net(batch["gray"], batch["sparse"])
+            loss = segmentation_loss(prob, batch["depth"])
+            if self.config.iou_loss:
+                loss = loss + self.config.iou_loss * soft_iou_loss(prob, batch["depth"])
+            return loss
         depth, prob = net(batch["gray"], batch["sparse"])
         if self.model.fsnet is None:
             return dense_depth_loss(depth, batch["depth"])
