@@ -83,7 +83,7 @@ class TrainConfig:
     command: str = field(default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]))
 
 
-PROVENANCE = ("hardware", "train_config", "dataset", "history", "parent")
+PROVENANCE = ("hardware", "train_config", "dataset", "history", "parent", "segmentation_parent")
 
 PRESETS: dict[str, dict] = {
     # The paper's recipe (sec. V-A), for a GPU.
@@ -196,6 +196,9 @@ class Trainer:
         if self.config.init_weights:
             state = self._init_checkpoint
             provenance["parent"] = {k: state[k] for k in PROVENANCE if k in state}
+        if self.config.init_segmentation and self.model.fsnet is not None:
+            state = self._segmentation_checkpoint
+            provenance["segmentation_parent"] = {k: state[k] for k in PROVENANCE if k in state}
         return provenance
 
     def _save(self, name: str, optimizer, scheduler) -> None:
@@ -328,12 +331,21 @@ class Trainer:
         self.state, self.history = state["state"], state["history"]
         return state["optimizer"], state["scheduler"]
 
-    def _init_segmentation(self) -> None:
-        state = torch.load(
+    @cached_property
+    def _segmentation_checkpoint(self) -> dict:
+        """The checkpoint whose FSNet stage 2 starts from (any depth design), read once for its
+        weights and its provenance."""
+        return torch.load(
             self.config.init_segmentation, map_location=self.device, weights_only=True
         )
+
+    def _init_segmentation(self) -> None:
         own = self.model.state_dict()
-        seg = {k: v for k, v in state["model"].items() if k.startswith("fsnet.") and k in own}
+        seg = {
+            k: v
+            for k, v in self._segmentation_checkpoint["model"].items()
+            if k.startswith("fsnet.") and k in own
+        }
         self.model.load_state_dict({**own, **seg})
         self.state["stage"] = 2
 
