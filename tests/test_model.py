@@ -15,7 +15,7 @@ from sdcnet.training.losses import (
 )
 from sdcnet.training.model.cca import CrossChannelAttention
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
-from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet
+from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet, build_model
 
 
 def lidar_like(batch: int, height: int, width: int, depth: float = 120.0) -> torch.Tensor:
@@ -163,3 +163,18 @@ def test_soft_iou_loss_is_one_minus_the_iou_of_a_hard_mask():
     prob[..., 1:3, :] = 1.0  # 8 pixels predicted, 4 right: IOU 4 / 12
     assert soft_iou_loss(prob, gt).item() == pytest.approx(1 - 4 / 12)
     assert soft_iou_loss((gt > 0).float(), gt).item() == pytest.approx(0.0)
+
+
+def test_an_untrained_refiner_leaves_fsnets_mask_as_it_was():
+    torch.manual_seed(0)
+    plain = build_model("sdcnet", mask_refiner=False).eval()
+    refined = build_model("sdcnet").eval()
+    refined.load_state_dict(plain.state_dict(), strict=False)
+    assert set(refined.state_dict()) - set(plain.state_dict()) == {
+        f"refiner.{k}" for k in refined.refiner.state_dict()
+    }
+    gray, sparse = torch.rand(1, 1, 128, 128), lidar_like(1, 128, 128)
+    with torch.no_grad():
+        torch.testing.assert_close(plain.segment(gray, sparse), refined.segment(gray, sparse))
+    trainable = {id(p) for p in refined.segmentation_parameters()}
+    assert all(id(p) in trainable for p in refined.refiner.parameters())

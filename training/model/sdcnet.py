@@ -29,6 +29,7 @@ from torch.nn import functional as F
 
 from sdcnet.training.model.fdcnet import FDCNet
 from sdcnet.training.model.fsnet import FSNet
+from sdcnet.training.model.mask_refiner import MaskRefiner
 from sdcnet.training.model.plane_fit import PlaneFitPrefill
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
 
@@ -52,6 +53,7 @@ class ModelConfig:
     depth_base: str = "plane"  # "plane": residual on a local plane fit; "mean": on the mean return
     subpixel: bool = True  # FDCNet sees gray blocks and predicts factor^2 sub-pixel residuals
     residual_scale_m: float = 1.0  # "plane": the residual head's output unit
+    mask_refiner: bool = True  # full-resolution refinement of FSNet's logits on the gray image
 
     @property
     def stride(self) -> int:
@@ -79,7 +81,12 @@ class ModelConfig:
 
 
 #: What configs saved before a field existed meant by it (the first shipped model's design).
-LEGACY_FIELDS = {"depth_base": "mean", "subpixel": False, "residual_scale_m": 1.0}
+LEGACY_FIELDS = {
+    "depth_base": "mean",
+    "subpixel": False,
+    "residual_scale_m": 1.0,
+    "mask_refiner": False,
+}
 
 
 VARIANTS: dict[str, ModelConfig] = {
@@ -90,7 +97,7 @@ VARIANTS: dict[str, ModelConfig] = {
     "fsnet+sa": ModelConfig(fusion="sa"),
     # The depth path's ablation: the first shipped design (residual on the mean return, on the
     # morphological pre-fill, bilinear upsampling), and the plane fit without sub-pixel output.
-    "sdcnet-v1": ModelConfig(depth_base="mean", subpixel=False),
+    "sdcnet-v1": ModelConfig(depth_base="mean", subpixel=False, mask_refiner=False),
     "plane": ModelConfig(subpixel=False),
 }
 
@@ -112,6 +119,7 @@ class SDCNet(nn.Module):
         self.fsnet = (
             FSNet(in_channels=fs_channels, out_channels=blocks) if config.use_fsnet else None
         )
+        self.refiner = MaskRefiner() if config.use_fsnet and config.mask_refiner else None
         plane = config.depth_base == "plane"
         self.plane_fit = PlaneFitPrefill(factor=config.factor) if plane else None
         cells = config.factor**2 if config.subpixel else 1  # outputs per working pixel
@@ -130,7 +138,8 @@ class SDCNet(nn.Module):
 
     def segmentation_parameters(self) -> list[nn.Parameter]:
         """Stage 1 trains these; stage 2 freezes them."""
-        return [] if self.fsnet is None else list(self.fsnet.parameters())
+        parts = [m for m in (self.fsnet, self.refiner) if m is not None]
+        return [p for m in parts for p in m.parameters()]
 
     def reference_depth(self, sparse_lr: torch.Tensor) -> torch.Tensor:
         """Mean LIDAR return per image (B, 1, 1, 1) metres; 0 when there is none."""
@@ -167,7 +176,10 @@ class SDCNet(nn.Module):
             "gray": [blocks],
             "sparse": [returns, relative],
         }[self.config.fsnet_inputs]
-        return torch.sigmoid(F.pixel_shuffle(self.fsnet(torch.cat(fs_in, 1)), seg))
+        logit = F.pixel_shuffle(self.fsnet(torch.cat(fs_in, 1)), seg)
+        if self.refiner is not None:
+            logit = self.refiner(x["gray"], logit)
+        return torch.sigmoid(logit)
 
     def _regress(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
         """Dense depth in metres at full (padded) resolution: a base (the local plane fit, or
