@@ -16,8 +16,7 @@ import numpy as np
 import onnx
 import torch
 
-from sdcnet import __version__
-from sdcnet.camera import PAPER_CAMERA
+from sdcnet import __version__, runtime
 from sdcnet.runtime import INPUTS, OUTPUTS, OnnxModel
 from sdcnet.training.model.sdcnet import SDCNet
 
@@ -29,31 +28,15 @@ MIN_MASK_AGREEMENT = 0.9999
 def model_metadata(
     model: SDCNet, version: str, metrics: dict | None = None, extra: dict | None = None
 ) -> dict:
-    """The metadata_props written into the file: all the service needs besides the graph."""
-    meta = {
-        "sdcnet_version": __version__,
-        "model_version": version,
-        "intrinsics": json.dumps(PAPER_CAMERA.intrinsics().as_dict()),
-        "training_size": str(PAPER_CAMERA.width),
-        "stride": str(model.config.stride),
-        "factor": str(model.config.factor),
-        "model_config": json.dumps(model.config.to_dict()),
-        "metrics": json.dumps(metrics or {}),
-        "inputs": json.dumps(
-            {
-                "gray": "float32 (B, 1, H, W) in [0, 1]: 8-bit / 255 or 16-bit / 65535",
-                "sparse": "float32 (B, 1, H, W) LIDAR camera-frame Z in metres, 0 = no return",
-            }
-        ),
-        "outputs": json.dumps(
-            {
-                "depth": "float32 (B, 1, H, W) camera-frame Z, metres (valid on the foreground)",
-                "foreground": "float32 (B, 1, H, W) probability that a pixel is spacecraft",
-            }
-        ),
-    }
-    meta.update(extra or {})
-    return meta
+    """The metadata_props written into the file: all the service needs besides the graph,
+    and the architecture (``model_config``) it was exported from."""
+    return runtime.model_metadata(
+        version,
+        model.config.stride,
+        model.config.factor,
+        metrics,
+        {"model_config": json.dumps(model.config.to_dict()), **(extra or {})},
+    )
 
 
 def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Path:

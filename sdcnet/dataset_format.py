@@ -62,6 +62,12 @@ def write_sample(path: Path, sample: Sample) -> None:
     os.replace(tmp, path)
 
 
+def write_manifest(root: Path, metas: list[dict]) -> None:
+    """``root/manifest.jsonl``: one line per sample's metadata, in the order given (by id)."""
+    lines = [json.dumps(meta, sort_keys=True) for meta in metas]
+    (Path(root) / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+
+
 def read_sample(path: Path) -> Sample:
     """Read one sample file; never unpickles."""
     with np.load(path, allow_pickle=False) as npz:

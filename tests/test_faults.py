@@ -19,7 +19,6 @@ from pathlib import Path
 import onnx
 import onnxruntime as ort
 import pytest
-from fixtures_runtime import random_model
 from onnx import TensorProto, helper
 
 _MISSING_PROVIDER = next(
@@ -60,9 +59,8 @@ def _graph_model(
     return model
 
 
-def model_files(base: Path) -> dict[str, Path]:
-    """The broken model files, next to a real (random-weights) sdcnet model."""
-    good = random_model(base)
+def model_files(base: Path, good: Path) -> dict[str, Path]:
+    """The broken model files in ``base``, made from the ``good`` (tiny) sdcnet model."""
     data = good.read_bytes()
     metadata = {p.key: p.value for p in onnx.load(good).metadata_props}
     files = {
@@ -141,9 +139,9 @@ CASES: dict[str, tuple[str | None, list[str], dict[str, str], str]] = {
 
 
 @pytest.fixture(scope="module")
-def outcomes(tmp_path_factory) -> dict[str, tuple[Outcome, str]]:
+def outcomes(tmp_path_factory, tiny_model_path) -> dict[str, tuple[Outcome, str]]:
     """Start every case at once; (outcome, expected message) per case."""
-    paths = model_files(tmp_path_factory.getbasetemp())
+    paths = model_files(tmp_path_factory.mktemp("faults"), tiny_model_path)
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
