@@ -8,6 +8,7 @@ foreground or the foreground decisions agree on fewer than 99.99 % of pixels.
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,11 +73,14 @@ def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Pa
 
 @dataclass
 class ParityCase:
+    """One comparison: ``size`` x ``size`` crops, ``batch`` of them; depth compared on the
+    ``compared_px`` pixels that either runtime calls foreground."""
+
     size: int
     batch: int
     max_depth_error_m: float
     mask_agreement: float
-    foreground_px: int
+    compared_px: int
 
     @property
     def passed(self) -> bool:
@@ -120,10 +124,30 @@ def parity_check(
                     batch,
                     float(error.max()) if error.size else 0.0,
                     float(np.mean((prob > 0.5) == foreground)),
-                    int(foreground.sum()),
+                    int(error.size),
                 )
             )
     return cases
+
+
+def export_checked(
+    model: SDCNet,
+    out: Path,
+    metadata: dict[str, str],
+    frames: list[tuple[np.ndarray, np.ndarray]],
+) -> list[ParityCase]:
+    """Export ``model`` to a temporary file beside ``out``, check its parity on ``frames``, and
+    only when every case passes move it to ``out`` (one rename): ``out`` never holds a graph
+    that failed, and a failed or interrupted export leaves it as it was."""
+    staged = out.with_name(f".{out.name}.unchecked")
+    try:
+        export_onnx(model, staged, metadata)
+        cases = parity_check(model, staged, frames)
+        if all(c.passed for c in cases):
+            os.replace(staged, out)
+        return cases
+    finally:
+        staged.unlink(missing_ok=True)
 
 
 def _centre(image: np.ndarray, size: int) -> np.ndarray:

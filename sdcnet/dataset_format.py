@@ -116,9 +116,11 @@ class SampleStore:
     def __len__(self) -> int:
         return len(self.records)
 
-    def split(self, name: str) -> list[dict]:
-        """Manifest records of one split ('train', 'val', 'test', or any custom split name)."""
-        return [r for r in self.records if r["split"] == name]
+    def split(self, name: str, limit: int | None = None) -> list[dict]:
+        """Manifest records of one split ('train', 'val', 'test', or any custom split name);
+        at most ``limit`` of them, evenly spread (``evenly_spread``), when given."""
+        records = [r for r in self.records if r["split"] == name]
+        return evenly_spread(records, limit) if limit else records
 
     def load(self, record: dict) -> Sample:
         return read_sample(self.root / record["file"])

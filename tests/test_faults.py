@@ -21,6 +21,8 @@ import onnxruntime as ort
 import pytest
 from onnx import TensorProto, helper
 
+from sdcnet.devtools.models import graph_model
+
 _MISSING_PROVIDER = next(
     name
     for name in ("cuda", "tensorrt", "rocm", "openvino")
@@ -40,25 +42,6 @@ class Outcome:
         return lines[-1] if lines else ""
 
 
-def _graph_model(
-    nodes: list, inputs: list[str], outputs: list[str], metadata: dict[str, str] | None = None
-) -> onnx.ModelProto:
-    """An ONNX model of ``nodes`` on float tensors (B, 1, H, W), with ``metadata``."""
-    shape = ["b", 1, "h", "w"]
-    graph = helper.make_graph(
-        nodes,
-        "not-sdcnet",
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in inputs],
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, None) for n in outputs],
-        initializer=[helper.make_tensor("shape", TensorProto.INT64, [4], [1, 1, 7, 7])],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    for key, value in (metadata or {}).items():
-        model.metadata_props.add(key=key, value=value)
-    return model
-
-
 def model_files(base: Path, good: Path) -> dict[str, Path]:
     """The broken model files in ``base``, made from the ``good`` (tiny) sdcnet model."""
     data = good.read_bytes()
@@ -76,7 +59,7 @@ def model_files(base: Path, good: Path) -> dict[str, Path]:
     paths["directory"].mkdir(exist_ok=True)
     identity = helper.make_node("Identity", ["x"], ["y"])
     paths["not_sdcnet"] = base / "identity.onnx"
-    onnx.save(_graph_model([identity], ["x"], ["y"]), paths["not_sdcnet"])
+    onnx.save(graph_model([identity], ("x",), ("y",)), paths["not_sdcnet"])
     # sdcnet's names and metadata, but intrinsics that are not JSON
     paths["broken_metadata"] = base / "broken-metadata.onnx"
     broken = onnx.load(good)
@@ -89,8 +72,8 @@ def model_files(base: Path, good: Path) -> dict[str, Path]:
         helper.make_node("Reshape", ["gray", "shape"], ["depth"]),
         helper.make_node("Identity", ["sparse"], ["foreground"]),
     ]
-    impostor = _graph_model(nodes, ["gray", "sparse"], ["depth", "foreground"], metadata)
-    onnx.save(impostor, paths["impostor"])
+    seven = helper.make_tensor("shape", TensorProto.INT64, [4], [1, 1, 7, 7])
+    onnx.save(graph_model(nodes, metadata=metadata, initializers=(seven,)), paths["impostor"])
     paths["good"] = good
     return paths
 

@@ -14,6 +14,32 @@ RANDOM_VERSION = "test-random"
 TINY_FILL_PX = 19
 
 
+def graph_model(
+    nodes: list,
+    inputs: tuple[str, ...] = INPUTS,
+    outputs: tuple[str, ...] = OUTPUTS,
+    metadata: dict[str, str] | None = None,
+    initializers: tuple = (),
+):
+    """An ONNX model (opset 17) of ``nodes`` on float tensors (B, 1, H, W) named ``inputs``
+    and ``outputs``, carrying ``metadata``. Needs the ``onnx`` package."""
+    from onnx import TensorProto, helper
+
+    shape = ["batch", 1, "height", "width"]
+    graph = helper.make_graph(
+        nodes,
+        "sdcnet-test",
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in inputs],
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in outputs],
+        initializer=list(initializers),
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8  # read by every onnxruntime since 1.14
+    for key, value in sorted((metadata or {}).items()):
+        model.metadata_props.add(key=key, value=value)
+    return model
+
+
 def tiny_model(base: Path, stride: int = 64) -> Path:
     """``base/sdcnet-tiny.onnx``: an ONNX graph with sdcnet's inputs, outputs and metadata and
     two operators, so that the service and the client can be tested without torch and fast:
@@ -24,7 +50,7 @@ def tiny_model(base: Path, stride: int = 64) -> Path:
 
     Written once; needs the ``onnx`` package."""
     import onnx
-    from onnx import TensorProto, helper
+    from onnx import helper
 
     path = base / "sdcnet-tiny.onnx"
     if path.exists():
@@ -47,17 +73,7 @@ def tiny_model(base: Path, stride: int = 64) -> Path:
         ),
         helper.make_node("Identity", ["gray"], ["foreground"]),
     ]
-    shape = ["batch", 1, "height", "width"]
-    graph = helper.make_graph(
-        nodes,
-        "sdcnet-tiny",
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in INPUTS],
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in OUTPUTS],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8  # read by every onnxruntime since 1.14
-    for key, value in sorted(model_metadata(TINY_VERSION, stride).items()):
-        model.metadata_props.add(key=key, value=value)
+    model = graph_model(nodes, metadata=model_metadata(TINY_VERSION, stride))
     onnx.checker.check_model(model, full_check=True)
     base.mkdir(parents=True, exist_ok=True)
     onnx.save(model, path)
