@@ -406,11 +406,9 @@ class Trainer:
                 self._save("last.pt", optimizer, scheduler)
                 if self.world > 1:
                     dist.barrier()
-            best_stage1 = self.out / "best_stage1.pt"
             if stage == 1 and epochs > 0:  # stage 2 starts from the best segmentation
-                load_weights(
-                    self.model, read_checkpoint(best_stage1, self.device)["model"], best_stage1
-                )
+                best = self.out / "best_stage1.pt"
+                load_weights(self.model, read_checkpoint(best, self.device)["model"], best)
             self.state = {"stage": stage + 1, "epoch": 0, "best": None}
         if self.is_main:
             (self.out / "train_config.json").write_text(
