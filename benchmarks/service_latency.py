@@ -38,7 +38,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
-from tests.fixtures_runtime import multipart_body, sample_files, samples, temporary_service
+from sdcnet.devtools.frames import generated_samples, multipart_body, sample_files
+from sdcnet.devtools.serving import temporary_service
 
 PHASES = ("decode", "queue", "inference", "encode")
 TARGET_MS = 100.0  # p50 of a 1024 x 1024 frame at concurrency 1: the LIDAR's 10 Hz
@@ -76,7 +77,7 @@ class Run:
 
 def frame_bodies(count: int, size: int = 1024, seed: int = 5) -> list[Body]:
     """``count`` generated frames as multipart bodies (gray PNG, sparse .npy), encoded once."""
-    return [multipart_body(sample_files(s)) for s in samples(size, count, seed)]
+    return [multipart_body(sample_files(s)) for s in generated_samples(size, count, seed)]
 
 
 def server_timing(header: str | None) -> dict[str, float]:

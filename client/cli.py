@@ -1,6 +1,7 @@
 """``sdc-client``: talk to an sdcnet service from the command line.
 
     sdc-client infer GRAY SPARSE [--out DIR] [--fx F --fy F --cx C --cy C] [--depth-scale S]
+        SPARSE: a .npy (metres), a 16-bit PNG (--depth-scale) or a row,col,z_m returns CSV
     sdc-client batch DIR_OR_MANIFEST --out DIR [--concurrency N] [--split test]
     sdc-client health
     sdc-client model
@@ -17,17 +18,20 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.client.api import (
     DEFAULT_URL,
     Client,
     ClientError,
     InputError,
-    ServiceError,
     ServiceUnreachableError,
     read_file,
 )
 from sdcnet.client.batch import find_pairs, run_batch
 from sdcnet.client.outputs import local_image, summary, write_outputs
+from sdcnet.returns import dense_from_returns, read_returns_csv
 
 EXIT_OK, EXIT_FAILED_PAIRS, EXIT_INPUT, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2, 3, 4
 
@@ -41,6 +45,7 @@ def _connection_options() -> argparse.ArgumentParser:
     common.add_argument(
         "--retries", type=int, default=3, help="retries on connection errors and 503"
     )
+    add_debug_flag(common)
     return common
 
 
@@ -73,7 +78,11 @@ def parser() -> argparse.ArgumentParser:
         "infer", parents=[common, frame], help="complete one frame and write its files"
     )
     infer.add_argument("gray", type=Path, help="gray image: PNG, TIFF, JPEG or BMP")
-    infer.add_argument("sparse", type=Path, help=".npy (metres) or 16-bit PNG (--depth-scale)")
+    infer.add_argument(
+        "sparse",
+        type=Path,
+        help=".npy (metres), 16-bit PNG (--depth-scale) or returns CSV (row,col,z_m per line)",
+    )
     infer.add_argument("--out", type=Path, default=Path("sdcnet-out"), help="output folder")
     batch = sub.add_parser(
         "batch", parents=[common, frame], help="complete many frames, a folder per frame"
@@ -93,9 +102,26 @@ def _frame_kwargs(args: argparse.Namespace) -> dict[str, float]:
     return {k: getattr(args, k) for k in names if getattr(args, k) is not None}
 
 
+def returns_map(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """The dense map (metres) of a returns CSV (``sdcnet.returns``) for an image of ``shape``,
+    as the service takes it today."""
+    read_file(path, "LIDAR returns")  # a missing or unreadable file: the usual message
+    try:
+        returns = read_returns_csv(path)  # its errors name the file and line
+    except (OSError, ValueError) as exc:
+        raise InputError(str(exc)) from None
+    try:
+        return dense_from_returns(returns, shape)
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
 def cmd_infer(client: Client, args: argparse.Namespace) -> int:
     gray = read_file(args.gray, "gray image")
-    sparse = read_file(args.sparse, "sparse depth")
+    if args.sparse.suffix.lower() == ".csv":
+        sparse: bytes | np.ndarray = returns_map(args.sparse, local_image(gray).shape[:2])
+    else:
+        sparse = read_file(args.sparse, "sparse depth")
     result = client.complete(
         gray, sparse, outlier_removal=args.outlier_removal, **_frame_kwargs(args)
     )
@@ -140,23 +166,22 @@ def cmd_model(client: Client, args: argparse.Namespace) -> int:
 COMMANDS = {"infer": cmd_infer, "batch": cmd_batch, "health": cmd_health, "model": cmd_model}
 
 
+#: Exit status of each kind of error (the first that matches); anything else is a bug.
+USER_ERRORS = {
+    InputError: EXIT_INPUT,
+    ServiceUnreachableError: EXIT_UNREACHABLE,
+    ClientError: EXIT_SERVICE,  # ServiceError, and answers the client cannot read
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    try:
+
+    def command() -> int:
         with Client(args.url, timeout_s=args.timeout, retries=args.retries) as client:
             return COMMANDS[args.command](client, args)
-    except InputError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_INPUT
-    except ServiceError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_SERVICE
-    except ServiceUnreachableError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_UNREACHABLE
-    except ClientError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_SERVICE
+
+    return run_command("sdc-client", command, USER_ERRORS, args.debug)
 
 
 if __name__ == "__main__":

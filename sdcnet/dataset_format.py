@@ -62,6 +62,12 @@ def write_sample(path: Path, sample: Sample) -> None:
     os.replace(tmp, path)
 
 
+def write_manifest(root: Path, metas: list[dict]) -> None:
+    """``root/manifest.jsonl``: one line per sample's metadata, in the order given (by id)."""
+    lines = [json.dumps(meta, sort_keys=True) for meta in metas]
+    (Path(root) / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+
+
 def read_sample(path: Path) -> Sample:
     """Read one sample file; never unpickles."""
     with np.load(path, allow_pickle=False) as npz:
@@ -110,9 +116,11 @@ class SampleStore:
     def __len__(self) -> int:
         return len(self.records)
 
-    def split(self, name: str) -> list[dict]:
-        """Manifest records of one split ('train', 'val', 'test', or any custom split name)."""
-        return [r for r in self.records if r["split"] == name]
+    def split(self, name: str, limit: int | None = None) -> list[dict]:
+        """Manifest records of one split ('train', 'val', 'test', or any custom split name);
+        at most ``limit`` of them, evenly spread (``evenly_spread``), when given."""
+        records = [r for r in self.records if r["split"] == name]
+        return evenly_spread(records, limit) if limit else records
 
     def load(self, record: dict) -> Sample:
         return read_sample(self.root / record["file"])

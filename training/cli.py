@@ -9,7 +9,8 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-from sdcnet.dataset_format import SampleStore, evenly_spread
+from sdcnet.cli import add_debug_flag, run_command
+from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
@@ -125,11 +126,9 @@ def cmd_real(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     store = SampleStore(args.data)
-    records = store.split(args.split)
+    records = store.split(args.split, args.limit)
     if not records:
         raise ValueError(f"split {args.split!r} is empty in {args.data}")
-    if args.limit:
-        records = evenly_spread(records, args.limit)
     methods = _methods(args)
     results, counts, undefined = {}, {}, {}
     for name, (fn, stride) in methods.items():
@@ -179,8 +178,13 @@ def appended(path: Path, report: dict) -> dict:
     return merged
 
 
+#: What a user's mistake raises (a missing or bad file, a bad value): one line, exit 2.
+USER_ERRORS = {OSError: 2, ValueError: 2}
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sdc-train", description=__doc__)
+    add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
     f = sub.add_parser("fit", help="two-stage training; resumes from OUT/last.pt")
     f.add_argument("--data", required=True, help="dataset directory (sdc-data generate)")
@@ -298,11 +302,7 @@ def cmd_card(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"sdc-train: error: {exc}", file=sys.stderr)
-        return 2
+    return run_command("sdc-train", lambda: args.func(args), USER_ERRORS, args.debug)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.metrics import NAMES
-from sdcnet.training.checkpoint import save_checkpoint
+from sdcnet.training.checkpoint import load_weights, read_checkpoint, save_checkpoint
 from sdcnet.training.dataset import TileDataset
 from sdcnet.training.evaluate import (
     evaluate_records,
@@ -326,8 +326,10 @@ class Trainer:
         path = self.out / "last.pt"
         if not path.exists():
             return None, None
-        state = torch.load(path, map_location=self.device, weights_only=True)
-        self.model.load_state_dict(state["model"])
+        state = read_checkpoint(path, self.device)
+        if not {"state", "history", "optimizer", "scheduler"} <= set(state):
+            raise ValueError(f"{path} is not a run's last.pt (no trainer state): use --restart")
+        load_weights(self.model, state["model"], path)
         self.state, self.history = state["state"], state["history"]
         return state["optimizer"], state["scheduler"]
 
@@ -335,27 +337,25 @@ class Trainer:
     def _segmentation_checkpoint(self) -> dict:
         """The checkpoint whose FSNet stage 2 starts from (any depth design), read once for its
         weights and its provenance."""
-        return torch.load(
-            self.config.init_segmentation, map_location=self.device, weights_only=True
-        )
+        return read_checkpoint(self.config.init_segmentation, self.device)
 
     def _init_segmentation(self) -> None:
+        path = self.config.init_segmentation
+        theirs = self._segmentation_checkpoint["model"]
         own = self.model.state_dict()
-        seg = {
-            k: v
-            for k, v in self._segmentation_checkpoint["model"].items()
-            if k.startswith("fsnet.") and k in own
-        }
-        self.model.load_state_dict({**own, **seg})
+        seg = {k: v for k, v in theirs.items() if k.startswith(("fsnet.", "refiner.")) and k in own}
+        if not seg:
+            raise ValueError(f"{path} holds no FSNet weights to reuse (--init-segmentation)")
+        load_weights(self.model, {**own, **seg}, path)
         self.state["stage"] = 2
 
     @cached_property
     def _init_checkpoint(self) -> dict:
         """The checkpoint fine-tuning starts from (same variant, else a clear error), read once
         for its weights and its provenance."""
-        state = torch.load(self.config.init_weights, map_location=self.device, weights_only=True)
-        theirs = state.get("model_config")
-        if theirs is None or ModelConfig.from_dict(theirs) != self.model.config:
+        state = read_checkpoint(self.config.init_weights, self.device)
+        theirs = state["model_config"]
+        if ModelConfig.from_dict(theirs) != self.model.config:
             raise ValueError(
                 f"{self.config.init_weights} holds another architecture "
                 f"({theirs}); --init-weights needs the same variant"
@@ -364,7 +364,16 @@ class Trainer:
 
     def _init_weights(self) -> None:
         """Start from a whole trained model of the same variant (fine-tuning)."""
-        self.model.load_state_dict(self._init_checkpoint["model"])
+        load_weights(self.model, self._init_checkpoint["model"], self.config.init_weights)
+
+    def _check_segmentation_is_trained(self) -> None:
+        """Stage 2 trains on FSNet's mask: a fresh run must train FSNet or be given one."""
+        if self.state["stage"] == 1 and self.config.fsnet_epochs == 0:
+            raise ValueError(
+                "--fsnet-epochs 0 on a fresh run would leave FSNet untrained for stage 2: "
+                "train it (--fsnet-epochs N) or start from trained weights (--init-weights, "
+                "--init-segmentation)"
+            )
 
     def fit(self, resume: bool = True) -> Path:
         """Run (or resume) both stages; the best checkpoint: best.pt, or best_stage1.pt when
@@ -378,6 +387,8 @@ class Trainer:
             and self.model.fsnet is not None
         ):
             self._init_segmentation()
+        if optimizer_state is None and not self.config.init_weights:
+            self._check_segmentation_is_trained()
         while self.state["stage"] <= 2:
             stage = self.state["stage"]
             optimizer, scheduler, epochs = self._stage_setup(stage)
@@ -416,11 +427,9 @@ class Trainer:
                 self._save("last.pt", optimizer, scheduler)
                 if self.world > 1:
                     dist.barrier()
-            if stage == 1:  # stage 2 starts from the best segmentation
-                best = torch.load(
-                    self.out / "best_stage1.pt", map_location=self.device, weights_only=True
-                )
-                self.model.load_state_dict(best["model"])
+            if stage == 1 and epochs > 0:  # stage 2 starts from the best segmentation
+                best = self.out / "best_stage1.pt"
+                load_weights(self.model, read_checkpoint(best, self.device)["model"], best)
             self.state = {"stage": stage + 1, "epoch": 0, "best": None}
         if self.is_main:
             (self.out / "train_config.json").write_text(

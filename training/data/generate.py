@@ -19,6 +19,7 @@ from sdcnet.dataset_format import (
     is_complete,
     read_meta,
     sample_id,
+    write_manifest,
     write_sample,
 )
 from sdcnet.training.data.lidar import scan
@@ -196,6 +197,5 @@ def generate(
     files = [out / "samples" / f"{sample_id(t[2], t[3])}.npz" for t in tasks]
     if not all(is_complete(f) for f in files):
         return None
-    lines = [json.dumps(read_meta(f), sort_keys=True) for f in files]
-    (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+    write_manifest(out, [read_meta(f) for f in files])
     return SampleStore(out)
