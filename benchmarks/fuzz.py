@@ -8,7 +8,7 @@ coverage (boundary values and each kind of invalid input the schema implies) and
 phases on every operation, ``--max-examples`` cases per operation and phase, with all its
 checks: no 5xx, statuses, content types, headers and bodies as the schema says, schema-invalid
 requests refused, schema-valid ones accepted (positive ``POST /complete`` cases carry a real
-frame: ``tests/fixtures_runtime.real_files_for_valid_cases``), unexpected methods answered 405.
+frame: ``sdcnet.devtools.fuzzing.real_files_for_valid_cases``), unexpected methods answered 405.
 
 Prints the statuses per operation and every failure with a curl command that reproduces it;
 exit status 1 on any failure. ``tests/test_fuzz.py`` runs the same with a few examples.
@@ -19,7 +19,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tests.fixtures_runtime import fuzz_api, temporary_service
+from sdcnet.devtools.fuzzing import fuzz_api
+from sdcnet.devtools.serving import temporary_service
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -41,15 +41,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
+from sdcnet.devtools.frames import generated_samples, multipart_body, sample_files, v2_body
+from sdcnet.devtools.fuzzing import V2_INFER
+from sdcnet.devtools.serving import temporary_service
 from sdcnet.returns import returns_from_dense
-from tests.fixtures_runtime import (
-    V2_INFER,
-    multipart_body,
-    sample_files,
-    samples,
-    temporary_service,
-    v2_body,
-)
 
 PHASES = ("decode", "queue", "inference", "encode")
 TARGET_MS = 100.0  # p50 of a 1024 x 1024 frame at concurrency 1: the LIDAR's 10 Hz
@@ -100,7 +95,7 @@ def frame_bodies(
     """``count`` generated frames as request bodies, encoded once: multipart forms (gray PNG,
     sparse .npy) for ``POST /complete``, or binary v2 requests (gray UINT8, returns FP32)."""
     bodies = []
-    for s in samples(size, count, seed):
+    for s in generated_samples(size, count, seed):
         if endpoint == "v2":
             content, headers = v2_body(s.gray, returns_from_dense(s.sparse))
             bodies.append(Body(V2_INFER.split(" ")[1], content, headers))

@@ -55,19 +55,14 @@ from benchmarks.service_latency import server_timing
 from sdcnet.client.api import Client
 from sdcnet.client.transport import Transport
 from sdcnet.dataset_format import Sample, SampleStore, read_sample
+from sdcnet.devtools.frames import generated_samples, multipart_body, png_bytes
+from sdcnet.devtools.serving import benchmark_model, service_process
 from sdcnet.npyio import npy_bytes
-from sdcnet.returns import returns_csv, returns_from_dense
+from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.runtime import OnnxModel
 from sdcnet.service.decode import frame_of
 from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
 from sdcnet.service.settings import Settings
-from tests.fixtures_runtime import (
-    benchmark_model,
-    multipart_body,
-    png_bytes,
-    samples,
-    service_process,
-)
 
 PATHS = (
     "in-process pipeline",
@@ -122,7 +117,7 @@ def test_split_frame(data: Path) -> tuple[Sample, str]:
         for path in sorted((data / "samples").glob("*.npz")):
             if splits.get(str(int(path.name[1:5]))) == "test":
                 return read_sample(path), f"`{data}` test split, {path.stem}"
-    return samples(1024, 1)[0], "a generated frame (seed 5; no dataset at data/paper)"
+    return generated_samples(1024, 1)[0], "a generated frame (seed 5; no dataset at data/paper)"
 
 
 def real_mesh_frame(folder: Path, mesh: str) -> tuple[Sample, str]:
@@ -150,7 +145,7 @@ class Paths:
         gray_png = png_bytes(sample.gray)
         self.files = work / "gray.png", work / "returns.csv", work / "out"
         self.files[0].write_bytes(gray_png)
-        self.files[1].write_text(returns_csv(self.returns))
+        write_returns_csv(self.files[1], self.returns)
         gray_file = ("gray.png", gray_png)
         self.listed = multipart_body(
             {"gray": gray_file, "returns": ("returns.npy", npy_bytes(self.returns))}

@@ -122,9 +122,9 @@ def _load_npy(data: bytes) -> np.ndarray:
         raise InputError(f"cannot read the sparse .npy: {exc}") from None
 
 
-def _sparse_array(data: bytes, depth_scale: float | None) -> np.ndarray:
+def _sparse_array(data: bytes, depth_scale: float | None, label: str) -> np.ndarray:
     """A dense map or a returns list from file bytes: .npy, 16-bit PNG (times ``depth_scale``
-    metres per unit) or CSV (``row,col,z_m``)."""
+    metres per unit) or CSV (``row,col,z_m``; its errors start with ``label``)."""
     if data.startswith(NPY_MAGIC):
         return _load_npy(data)
     if data.startswith(PNG_SIGNATURE):
@@ -135,7 +135,7 @@ def _sparse_array(data: bytes, depth_scale: float | None) -> np.ndarray:
             raise InputError("a sparse PNG must be single-channel 16-bit")
         return units.astype(np.float32) * np.float32(depth_scale)
     try:
-        return parse_returns_csv(data.decode("utf-8"), "sparse CSV")
+        return parse_returns_csv(data.decode("utf-8"), label)
     except UnicodeDecodeError:
         raise InputError(
             "sparse must be a .npy file, a 16-bit PNG (with depth_scale) or a CSV of returns "
@@ -151,24 +151,33 @@ def returns_list(
     or 16-bit PNG with ``depth_scale``) or a list ((N, 3) array or .npy, CSV file)."""
     if (sparse is None) == (returns is None):
         raise InputError("give the LIDAR returns once: sparse (map or file) or returns (list)")
-    if returns is None:
-        if isinstance(sparse, np.ndarray):
-            returns = sparse
-        else:
-            data = sparse if isinstance(sparse, bytes) else read_file(sparse, "sparse depth")
-            returns = _sparse_array(data, depth_scale)
-    is_map = returns.ndim == 2 and returns.shape == shape
-    if is_map and returns.dtype not in (np.float32, np.float64):
-        raise InputError(f"a sparse map must hold float32 or float64 metres, got {returns.dtype}")
-    if returns.ndim != 2 or not (is_map or returns.shape[1] == 3):
-        raise InputError(
-            f"sparse must be a (H, W) = {shape} map in metres or an (N, 3) list of returns, "
-            f"got shape {returns.shape}"
-        )
+    label = str(sparse) if isinstance(sparse, str | Path) else "LIDAR returns"
     try:
+        if returns is None and isinstance(sparse, np.ndarray):
+            returns = sparse
+        elif returns is None:
+            if isinstance(sparse, bytes):
+                data = sparse
+            else:
+                csv = Path(sparse).suffix.lower() == ".csv"
+                data = read_file(sparse, "LIDAR returns" if csv else "sparse depth")
+            returns = _sparse_array(data, depth_scale, label)
+        is_map = returns.ndim == 2 and returns.shape == shape
+        if is_map and returns.dtype not in (np.float32, np.float64):
+            raise InputError(
+                f"a sparse map must hold float32 or float64 metres, got {returns.dtype}"
+            )
+        if returns.ndim != 2 or not (is_map or returns.shape[1] == 3):
+            raise InputError(
+                f"sparse must be a (H, W) = {shape} map in metres or an (N, 3) list of "
+                f"returns, got shape {returns.shape}"
+            )
         return returns_from_dense(returns) if is_map else check_returns(returns, shape)
-    except ReturnsError as exc:
-        raise InputError(f"LIDAR returns: {exc}") from None
+    except ReturnsError as exc:  # its message names the return (and the line of a file)
+        message = str(exc)
+        raise InputError(
+            message if message.startswith(f"{label}: ") else f"{label}: {message}"
+        ) from None
 
 
 def _error_of(response: Reply) -> ServiceError:

@@ -2,6 +2,7 @@
 
     sdc-client infer GRAY SPARSE [--out DIR] [--fx F --fy F --cx C --cy C] [--depth-scale S]
                                  [--float16-depth]
+        SPARSE: a .npy (metres), a 16-bit PNG (--depth-scale) or a row,col,z_m returns CSV
     sdc-client batch DIR_OR_MANIFEST --out DIR [--concurrency N] [--split test]
     sdc-client health
     sdc-client model
@@ -18,15 +19,14 @@ import json
 import sys
 from pathlib import Path
 
+from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.client.api import (
     DEFAULT_URL,
     Client,
     ClientError,
     InputError,
-    ServiceError,
     ServiceUnreachableError,
     gray_array,
-    read_file,
 )
 from sdcnet.client.batch import find_pairs, run_batch
 from sdcnet.client.outputs import summary, write_outputs
@@ -43,6 +43,7 @@ def _connection_options() -> argparse.ArgumentParser:
     common.add_argument(
         "--retries", type=int, default=3, help="retries on connection errors and 503"
     )
+    add_debug_flag(common)
     return common
 
 
@@ -56,12 +57,12 @@ def _frame_options() -> argparse.ArgumentParser:
         "--depth-scale", type=float, help="metres per unit of a 16-bit PNG sparse map"
     )
     frame.add_argument(
-        "--outlier-removal", action="store_true", help="statistical outlier removal on points"
-    )
-    frame.add_argument(
         "--float16-depth",
         action="store_true",
         help="depth as float16 on the wire: half the bytes, within 8 mm (default: exact)",
+    )
+    frame.add_argument(
+        "--outlier-removal", action="store_true", help="statistical outlier removal on points"
     )
     return frame
 
@@ -83,8 +84,7 @@ def parser() -> argparse.ArgumentParser:
     infer.add_argument(
         "sparse",
         type=Path,
-        help="LIDAR returns: .npy map (metres), 16-bit PNG map (--depth-scale) or CSV list "
-        "(row,col,z_m)",
+        help=".npy (metres), 16-bit PNG (--depth-scale) or returns CSV (row,col,z_m per line)",
     )
     infer.add_argument("--out", type=Path, default=Path("sdcnet-out"), help="output folder")
     batch = sub.add_parser(
@@ -107,10 +107,9 @@ def _frame_kwargs(args: argparse.Namespace) -> dict[str, float]:
 
 def cmd_infer(client: Client, args: argparse.Namespace) -> int:
     gray = gray_array(args.gray)
-    sparse = read_file(args.sparse, "sparse depth")
     result = client.complete(
         gray,
-        sparse,
+        args.sparse,  # a file: the client reads it (a CSV's errors name it, line and return)
         outlier_removal=args.outlier_removal,
         float16_depth=args.float16_depth,
         **_frame_kwargs(args),
@@ -157,23 +156,22 @@ def cmd_model(client: Client, args: argparse.Namespace) -> int:
 COMMANDS = {"infer": cmd_infer, "batch": cmd_batch, "health": cmd_health, "model": cmd_model}
 
 
+#: Exit status of each kind of error (the first that matches); anything else is a bug.
+USER_ERRORS = {
+    InputError: EXIT_INPUT,
+    ServiceUnreachableError: EXIT_UNREACHABLE,
+    ClientError: EXIT_SERVICE,  # ServiceError, and answers the client cannot read
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    try:
+
+    def command() -> int:
         with Client(args.url, timeout_s=args.timeout, retries=args.retries) as client:
             return COMMANDS[args.command](client, args)
-    except InputError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_INPUT
-    except ServiceError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_SERVICE
-    except ServiceUnreachableError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_UNREACHABLE
-    except ClientError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_SERVICE
+
+    return run_command("sdc-client", command, USER_ERRORS, args.debug)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,8 @@ convert exactly both ways:
 - several returns on one pixel: the nearest (smallest Z) wins it, as
   ``sdcnet.pipeline.resample_sparse`` decides when it moves returns to a coarser grid.
 
-On disk, a CSV file with the header ``row,col,z_m`` and one return per line.
+On disk, a CSV file with the header ``row,col,z_m`` and one return per line, e.g.
+``examples/<name>.returns.csv``.
 """
 
 from __future__ import annotations
@@ -44,8 +45,14 @@ def scatter_nearest(
     return out
 
 
+def _first(bad: np.ndarray) -> int:
+    """Index of the first return (row of ``bad``) that fails a check."""
+    return int(np.flatnonzero(bad.reshape(len(bad), -1).any(axis=1))[0])
+
+
 def check_returns(returns: np.ndarray, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """``returns`` validated, as float32 (N, 3); raises ``ReturnsError``.
+    """``returns`` validated, as float32 (N, 3); raises ``ReturnsError`` naming the first
+    return that fails.
 
     N >= 1; every value finite; Z > 0 metres; rows and columns whole, non-negative pixel
     indices. With the frame's ``shape`` (height, width): every return inside it, and N at
@@ -53,7 +60,7 @@ def check_returns(returns: np.ndarray, shape: tuple[int, int] | None = None) -> 
     """
     if not isinstance(returns, np.ndarray) or returns.ndim != 2 or returns.shape[1] != 3:
         got = returns.shape if isinstance(returns, np.ndarray) else type(returns).__name__
-        raise ReturnsError("wrong_shape", f"returns must be (N, 3): row, col, z_m; got {got}")
+        raise ReturnsError("wrong_shape", f"returns must be (N, 3): row, col, z_m; got shape {got}")
     if returns.dtype.kind != "f" or returns.dtype.itemsize not in (4, 8):
         raise ReturnsError(
             "wrong_dtype", f"returns must hold float32 or float64 values, got {returns.dtype}"
@@ -66,29 +73,30 @@ def check_returns(returns: np.ndarray, shape: tuple[int, int] | None = None) -> 
             f"{len(returns)} returns for a {shape[1]} x {shape[0]} frame: at most one per "
             "pixel on average",
         )
-    finite = np.isfinite(returns)
-    if not finite.all():
-        bad = int(np.count_nonzero(~finite.all(axis=1)))
-        raise ReturnsError("invalid_depth", f"{bad} returns hold NaN or infinite values")
-    z = returns[:, 2]
-    if (z <= 0).any():
+    if not np.isfinite(returns).all():
         raise ReturnsError(
-            "invalid_depth", f"{int(np.count_nonzero(z <= 0))} returns have Z <= 0: metres > 0"
+            "invalid_depth",
+            f"returns must be finite numbers; return {_first(~np.isfinite(returns))} is not",
         )
+    rows, cols, z = returns.T
+    if (z <= 0).any():
+        k = _first(z <= 0)
+        raise ReturnsError("invalid_depth", f"z_m must be > 0 (metres); return {k} has {z[k]}")
     pixels = returns[:, :2]
-    if (pixels != np.round(pixels)).any() or (pixels < 0).any():
-        bad = int(np.count_nonzero(((pixels != np.round(pixels)) | (pixels < 0)).any(axis=1)))
+    bad = (pixels != np.round(pixels)) | (pixels < 0)
+    if bad.any():
         raise ReturnsError(
             "invalid_returns",
-            f"{bad} returns are not at a pixel: row and col must be whole pixel indices >= 0",
+            f"row and col must be pixel indices (whole, >= 0); return {_first(bad)} is not",
         )
     if shape is not None:
-        outside = (pixels[:, 0] >= shape[0]) | (pixels[:, 1] >= shape[1])
+        outside = (rows >= shape[0]) | (cols >= shape[1])
         if outside.any():
+            k = _first(outside)
             raise ReturnsError(
                 "invalid_returns",
-                f"{int(np.count_nonzero(outside))} returns lie outside the {shape[1]} x "
-                f"{shape[0]} frame (row < {shape[0]}, col < {shape[1]})",
+                f"return {k} at row {rows[k]:.0f}, col {cols[k]:.0f} is outside the "
+                f"{shape[1]} x {shape[0]} image",
             )
     return returns.astype(np.float32, copy=False)
 
@@ -127,36 +135,57 @@ def returns_from_dense(sparse: np.ndarray) -> np.ndarray:
     return returns
 
 
+def _bad_line(lines: list[str]) -> str:
+    """Which data line of a CSV is not three numbers, and why (numpy's own parser failed)."""
+    for number, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        fields = line.split(",")
+        try:
+            if len(fields) != 3:
+                raise ValueError(f"{len(fields)} values")
+            [float(f) for f in fields]
+        except ValueError as exc:
+            return f"line {number}: expected row,col,z_m numbers, got {line!r} ({exc})"
+    return "expected row,col,z_m numbers on every line"
+
+
 def parse_returns_csv(text: str, source: str = "returns CSV") -> np.ndarray:
     """float32 (N, 3) returns of CSV text: the header ``row,col,z_m``, then one return per
-    line. Checked as ``check_returns`` without a frame (``ReturnsError``)."""
+    line (blank lines skipped). Checked as ``check_returns`` without a frame; every error
+    (``ReturnsError``) starts with ``source`` and names the line or return at fault."""
     lines = text.lstrip("\ufeff").splitlines()
     header = tuple(cell.strip() for cell in lines[0].split(",")) if lines else ()
     if header != CSV_HEADER:
         raise ReturnsError(
             "invalid_returns",
-            f"{source}: the first line must be the header {','.join(CSV_HEADER)}, got "
-            f"{','.join(header) or 'nothing'}",
+            f"{source}: the first line must be the header {','.join(CSV_HEADER)}",
         )
     if not any(line.strip() for line in lines[1:]):
         raise ReturnsError("no_returns", f"{source}: no LIDAR return after the header")
-    try:
+    try:  # numpy's C parser: fast on long lists; the slow scan only names a bad line
         values = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
-    except ValueError as exc:
-        raise ReturnsError("invalid_returns", f"{source}: not 3 numbers per line ({exc})") from None
-    return check_returns(values)
+    except ValueError:
+        raise ReturnsError("invalid_returns", f"{source}: {_bad_line(lines)}") from None
+    if values.shape[1] != 3:
+        raise ReturnsError("invalid_returns", f"{source}: {_bad_line(lines)}")
+    try:
+        return check_returns(values)
+    except ReturnsError as exc:
+        raise ReturnsError(exc.code, f"{source}: {exc}") from None
 
 
 def read_returns_csv(path: str | Path) -> np.ndarray:
-    """float32 (N, 3) returns of a CSV file (``parse_returns_csv``)."""
+    """float32 (N, 3) returns of a CSV file (``parse_returns_csv``; errors start with the
+    file's path); ``OSError`` if it cannot be read."""
     path = Path(path)
     return parse_returns_csv(path.read_text(), str(path))
 
 
-def returns_csv(returns: np.ndarray) -> str:
-    """CSV text of ``returns`` (header ``row,col,z_m``); Z written with float32's 9
-    significant digits, so that ``parse_returns_csv`` reads back the same float32 values."""
+def write_returns_csv(path: str | Path, returns: np.ndarray) -> None:
+    """Write ``returns`` as a CSV file (header ``row,col,z_m``); Z with float32's 9
+    significant digits, so that ``read_returns_csv`` reads back the same float32 values."""
     returns = check_returns(returns)
     lines = [",".join(CSV_HEADER)]
     lines += [f"{int(r)},{int(c)},{float(z):.9g}" for r, c, z in returns]
-    return "\n".join(lines) + "\n"
+    Path(path).write_text("\n".join(lines) + "\n")

@@ -6,16 +6,19 @@ checks (no 5xx, responses as the schema says, invalid requests refused, valid on
 from __future__ import annotations
 
 import pytest
-from fixtures_runtime import COMPLETE, V2_INFER, fuzz_api, random_model, running_service
+
+from sdcnet.devtools.fuzzing import COMPLETE, V2_INFER, fuzz_api
+from sdcnet.devtools.serving import running_service
 
 MAX_EXAMPLES = 40  # per operation and phase: about 150 requests, a few seconds
 
 
 @pytest.fixture(scope="module")
-def url(tmp_path_factory):
+def url(tmp_path_factory, tiny_model_path):
     log = tmp_path_factory.mktemp("fuzz") / "serve.log"
-    model = random_model(tmp_path_factory.getbasetemp())
-    with running_service(model, log, "--max-pixels=1048576", "--body-timeout=5") as address:
+    with running_service(
+        tiny_model_path, log, "--max-pixels=1048576", "--body-timeout=5"
+    ) as address:
         yield address
 
 

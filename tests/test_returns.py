@@ -1,14 +1,16 @@
-"""LIDAR returns as a list (sdcnet.returns) and the compact answer layouts (sdcnet.compact):
-exact round trips, the nearest-wins rule, and a clear error for every invalid list."""
+"""LIDAR returns as a row,col,z_m list (``sdcnet.returns``), ``sdc-client infer`` reading it,
+and the compact answer layouts (``sdcnet.compact``): exact round trips, the nearest-wins rule,
+and a clear error for every invalid list."""
 
 from __future__ import annotations
 
 import re
 
+import cv2
 import numpy as np
 import pytest
-from fixtures_runtime import sample
 
+from sdcnet.client.cli import main as client_main
 from sdcnet.compact import (
     crop,
     depth_from_fp16,
@@ -18,19 +20,80 @@ from sdcnet.compact import (
     paste,
     unpack_mask,
 )
+from sdcnet.devtools.frames import synthetic_frame
 from sdcnet.pipeline import resample_sparse
 from sdcnet.returns import (
     ReturnsError,
     dense_from_returns,
     parse_returns_csv,
     read_returns_csv,
-    returns_csv,
     returns_from_dense,
+    write_returns_csv,
 )
 
 
+def test_a_dense_map_round_trips_through_the_csv_to_the_millimetre(tmp_path):
+    sparse = synthetic_frame(256).sparse
+    write_returns_csv(tmp_path / "r.csv", returns_from_dense(sparse))
+    returns = read_returns_csv(tmp_path / "r.csv")
+    assert returns.dtype == np.float32 and returns.shape == (np.count_nonzero(sparse), 3)
+    assert (tmp_path / "r.csv").read_text().splitlines()[0] == "row,col,z_m"
+    dense = dense_from_returns(returns, sparse.shape)
+    np.testing.assert_array_equal(dense > 0, sparse > 0)
+    assert np.abs(dense - sparse).max() <= 0.0005 + 1e-4  # Z written to the millimetre
+
+
+def test_the_nearest_return_wins_a_pixel_and_blank_lines_are_skipped(tmp_path):
+    (tmp_path / "r.csv").write_text("row,col,z_m\n1,2,120.5\n\n1,2,119.25\n0,0,80\n")
+    dense = dense_from_returns(read_returns_csv(tmp_path / "r.csv"), (3, 4))
+    expected = np.zeros((3, 4), np.float32)
+    expected[1, 2], expected[0, 0] = 119.25, 80.0
+    np.testing.assert_array_equal(dense, expected)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("", "the first line must be the header row,col,z_m"),
+        ("x,y,z\n1,2,3\n", "the first line must be the header row,col,z_m"),
+        ("row,col,z_m\n1,2\n", "line 2: expected row,col,z_m numbers, got '1,2' (2 values)"),
+        ("row,col,z_m\n1,2,3\n1,two,3\n", "line 3: expected row,col,z_m numbers, got '1,two,3'"),
+        ("row,col,z_m\n1,2,nan\n", "returns must be finite numbers; return 0"),
+        ("row,col,z_m\n1,2,3\n4,5,-1\n", "z_m must be > 0 (metres); return 1 has -1.0"),
+        ("row,col,z_m\n1.5,2,3\n", "row and col must be pixel indices (whole, >= 0); return 0"),
+        ("row,col,z_m\n-1,2,3\n", "row and col must be pixel indices (whole, >= 0); return 0"),
+    ],
+)
+def test_a_bad_file_is_a_clear_error(tmp_path, text, message):
+    (tmp_path / "r.csv").write_text(text)
+    with pytest.raises(ValueError) as raised:
+        read_returns_csv(tmp_path / "r.csv")
+    assert str(raised.value).startswith(str(tmp_path / "r.csv"))
+    assert message in str(raised.value)
+
+
+def test_returns_outside_the_image_are_refused():
+    with pytest.raises(ValueError, match="return 1 at row 3, col 0 is outside the 4 x 3 image"):
+        dense_from_returns(np.array([[0, 0, 10], [3, 0, 10]], np.float32), (3, 4))
+
+
+def test_sdc_client_says_what_is_wrong_with_a_returns_file_in_one_line(tmp_path, capsys):
+    gray = tmp_path / "gray.png"
+    cv2.imwrite(str(gray), synthetic_frame(64).gray)
+    (tmp_path / "r.returns.csv").write_text("row,col,z_m\n64,0,100\n")
+    url = "http://127.0.0.1:9"  # never reached: the file is refused first
+    argv = ["infer", str(gray), str(tmp_path / "r.returns.csv"), "--url", url]
+    assert client_main(argv) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"sdc-client: error: {tmp_path / 'r.returns.csv'}: return 0 at row 64, col 0 is outside "
+        "the 64 x 64 image"
+    ]
+    assert client_main(["infer", str(gray), str(tmp_path / "none.csv"), "--url", url]) == 2
+    assert "LIDAR returns file not found" in capsys.readouterr().err
+
+
 def test_dense_and_list_convert_exactly_both_ways():
-    sparse = sample(256).sparse
+    sparse = synthetic_frame(256).sparse
     returns = returns_from_dense(sparse)
     assert returns.dtype == np.float32 and returns.shape == (np.count_nonzero(sparse), 3)
     np.testing.assert_array_equal(dense_from_returns(returns, sparse.shape), sparse)
@@ -52,9 +115,9 @@ def test_the_nearest_return_wins_a_pixel_as_when_resampling():
 
 
 def test_csv_round_trips_the_same_float32_values(tmp_path):
-    returns = returns_from_dense(sample(256).sparse)
+    returns = returns_from_dense(synthetic_frame(256).sparse)
     path = tmp_path / "returns.csv"
-    path.write_text(returns_csv(returns))
+    write_returns_csv(path, returns)
     assert path.read_text().startswith("row,col,z_m\n")
     np.testing.assert_array_equal(read_returns_csv(path), returns)
     with_spaces = "\ufeffrow, col, z_m\n1, 2, 100.5\n\n3,4,7\n"  # BOM, spaces, a blank line
@@ -69,14 +132,14 @@ def test_csv_round_trips_the_same_float32_values(tmp_path):
         (np.zeros((4, 2), np.float32), "wrong_shape", "must be (N, 3)"),
         (np.zeros((4, 3), np.int32), "wrong_dtype", "float32 or float64"),
         (np.zeros((0, 3), np.float32), "no_returns", "no LIDAR return"),
-        (np.array([[1, 1, np.nan]], np.float32), "invalid_depth", "NaN or infinite"),
-        (np.array([[1, np.inf, 5]], np.float32), "invalid_depth", "NaN or infinite"),
-        (np.array([[1, 1, 0]], np.float32), "invalid_depth", "Z <= 0"),
-        (np.array([[1, 1, -3]], np.float32), "invalid_depth", "Z <= 0"),
-        (np.array([[1.5, 1, 3]], np.float32), "invalid_returns", "whole pixel indices"),
-        (np.array([[-1, 1, 3]], np.float32), "invalid_returns", "whole pixel indices"),
-        (np.array([[8, 1, 3]], np.float32), "invalid_returns", "outside the 8 x 8 frame"),
-        (np.array([[1, 8, 3]], np.float32), "invalid_returns", "outside the 8 x 8 frame"),
+        (np.array([[1, 1, np.nan]], np.float32), "invalid_depth", "finite numbers; return 0"),
+        (np.array([[1, np.inf, 5]], np.float32), "invalid_depth", "finite numbers; return 0"),
+        (np.array([[1, 1, 5], [1, 1, 0]], np.float32), "invalid_depth", "return 1 has 0.0"),
+        (np.array([[1, 1, -3]], np.float32), "invalid_depth", "z_m must be > 0"),
+        (np.array([[1.5, 1, 3]], np.float32), "invalid_returns", "(whole, >= 0); return 0"),
+        (np.array([[-1, 1, 3]], np.float32), "invalid_returns", "(whole, >= 0); return 0"),
+        (np.array([[8, 1, 3]], np.float32), "invalid_returns", "outside the 8 x 8 image"),
+        (np.array([[1, 8, 3]], np.float32), "invalid_returns", "outside the 8 x 8 image"),
         (np.ones((65, 3), np.float32), "invalid_returns", "at most one per pixel"),
     ],
 )
@@ -87,20 +150,20 @@ def test_invalid_returns_are_named(returns, code, message):
 
 
 @pytest.mark.parametrize(
-    ("text", "code", "message"),
+    ("text", "code"),
     [
-        ("", "invalid_returns", "header row,col,z_m"),
-        ("r,c,z\n1,2,3\n", "invalid_returns", "header row,col,z_m"),
-        ("row,col,z_m\n", "no_returns", "no LIDAR return"),
-        ("row,col,z_m\n1,2\n", "wrong_shape", "must be (N, 3)"),
-        ("row,col,z_m\n1,2,x\n", "invalid_returns", "not 3 numbers"),
-        ("row,col,z_m\n1,2,3\n4,5\n", "invalid_returns", "not 3 numbers"),
+        ("r,c,z\n1,2,3\n", "invalid_returns"),
+        ("row,col,z_m\n", "no_returns"),
+        ("row,col,z_m\n1,2\n", "invalid_returns"),
+        ("row,col,z_m\n1,2,x\n", "invalid_returns"),
+        ("row,col,z_m\n1,2,-3\n", "invalid_depth"),
+        ("row,col,z_m\n1.5,2,3\n", "invalid_returns"),
     ],
 )
-def test_malformed_csv_is_named(text, code, message):
-    with pytest.raises(ReturnsError, match=re.escape(message)) as raised:
-        parse_returns_csv(text)
-    assert raised.value.code == code
+def test_a_bad_csv_gets_the_code_the_service_answers_with(text, code):
+    with pytest.raises(ReturnsError) as raised:
+        parse_returns_csv(text, "upload")
+    assert raised.value.code == code and str(raised.value).startswith("upload: ")
 
 
 def test_a_dense_map_with_bad_depths_is_refused():

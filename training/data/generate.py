@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
-import os
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -21,6 +19,8 @@ from sdcnet.dataset_format import (
     is_complete,
     read_meta,
     sample_id,
+    write_atomically,
+    write_manifest,
     write_sample,
 )
 from sdcnet.training.data.lidar import scan
@@ -159,15 +159,6 @@ def dataset_info(config: GenerateConfig) -> dict:
     }
 
 
-def write_atomically(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary file beside ``path``, then rename it: shards on other
-    machines that share the folder (``deploy/dataset-job.yaml``) read the old file or the new
-    one, never half of one."""
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False) as f:
-        f.write(text)
-    os.replace(f.name, path)
-
-
 def generate(
     config: GenerateConfig,
     out: Path,
@@ -207,6 +198,5 @@ def generate(
     files = [out / "samples" / f"{sample_id(t[2], t[3])}.npz" for t in tasks]
     if not all(is_complete(f) for f in files):
         return None
-    lines = [json.dumps(read_meta(f), sort_keys=True) for f in files]
-    write_atomically(out / "manifest.jsonl", "\n".join(lines) + "\n")
+    write_manifest(out, [read_meta(f) for f in files])
     return SampleStore(out)
