@@ -3,6 +3,7 @@
 #
 #   docker build -t sdcnet .                     # CPU image (the default target)
 #   docker build --target cuda -t sdcnet:cuda .  # onnxruntime-gpu on an NVIDIA CUDA runtime
+#   docker build --target data -t sdcnet:data .  # the dataset generator, sdc-data (deploy/)
 #   docker run --rm -p 8000:8000 sdcnet
 #   docker run --rm --gpus all -p 8000:8000 sdcnet:cuda
 #
@@ -79,6 +80,27 @@ EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=5s --start-period=60s --retries=3 \
     CMD ["python", "-c", "import os, urllib.request as u; u.urlopen('http://127.0.0.1:%s/v2/health/ready' % os.environ.get('SDCNET_PORT', '8000'), timeout=4)"]
 CMD ["sdc-serve"]
+
+# ---------------------------------------------------------------------------------------------
+# The dataset generator (sdc-data), to render a dataset on a cluster (deploy/dataset-job.yaml):
+# the data extra (trimesh, embreex, scipy) in place of the service; no torch, no model.
+FROM source AS data-build
+RUN python -m venv /opt/venv \
+    && /opt/venv/bin/pip install --no-cache-dir --disable-pip-version-check \
+        -c constraints.txt '.[data]' \
+    && /opt/venv/bin/python -P -c "import sdcnet.training.data.cli"
+
+FROM ${PYTHON_IMAGE} AS data
+RUN groupadd --system --gid 10001 sdcnet \
+    && useradd --system --uid 10001 --gid 10001 --no-create-home --shell /usr/sbin/nologin sdcnet
+COPY --from=data-build /opt/venv /opt/venv
+ENV PATH=/opt/venv/bin:$PATH \
+    PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    HOME=/tmp
+USER 10001:10001
+ENTRYPOINT ["sdc-data"]
+CMD ["--help"]
 
 # ---------------------------------------------------------------------------------------------
 # The CPU runtime image: last, so that it is the default target.

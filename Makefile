@@ -5,20 +5,41 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip install --quiet -c constraints.txt
 STAMP := $(VENV)/.installed
+# torch's CPU build: PyPI's Linux x86_64 torch is the CUDA one (several GB). torch is installed
+# first, alone, with this index added; --retries 0 so that where it cannot be reached (machines
+# that keep the wheel on disk, which pip's own configuration points at) pip goes on at once.
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: test lint format demo clean-venv
+.PHONY: test test-runtime lint format demo clean-venv
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) --upgrade pip
+	$(PIP) --retries 0 --extra-index-url $(TORCH_INDEX) torch
 	$(PIP) -e '.[dev]'
 	touch $(STAMP)
 
-## test: create the virtual environment if needed, lint, run the whole test suite
+## test: create the virtual environment if needed, lint, run the whole test suite (in a
+## random order: pytest-randomly prints the seed, `-p randomly --randomly-seed N` repeats it)
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest
+
+## test-runtime: the service, client and runtime tests in $(RUNTIME_VENV), an environment with
+## the serve and client extras and the test tools only: it checks that torch is not there
+RUNTIME_VENV ?= .venv-runtime
+RUNTIME_STAMP := $(RUNTIME_VENV)/.installed
+$(RUNTIME_STAMP): pyproject.toml constraints.txt
+	$(PYTHON) -m venv $(RUNTIME_VENV)
+	$(RUNTIME_VENV)/bin/python -m pip install --quiet -c constraints.txt --upgrade pip
+	$(RUNTIME_VENV)/bin/python -m pip install --quiet -c constraints.txt -e '.[test-runtime]'
+	touch $(RUNTIME_STAMP)
+
+test-runtime: $(RUNTIME_STAMP)
+	$(RUNTIME_VENV)/bin/python -c "import importlib.util as u, sys; \
+		sys.exit('torch is installed in $(RUNTIME_VENV)' if u.find_spec('torch') else 0)"
+	$(RUNTIME_VENV)/bin/python -m pytest --runtime-only
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
@@ -34,7 +55,7 @@ demo: $(STAMP)
 	$(VENV)/bin/sdc-data preview data/demo --count 6
 
 clean-venv:
-	rm -rf $(VENV)
+	rm -rf $(VENV) $(RUNTIME_VENV)
 
 ## serve: start the inference service on the shipped model (http://127.0.0.1:8000/docs);
 ## flags through SERVE_ARGS, e.g. make serve SERVE_ARGS="--port 9000 --threads 2"

@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt
 import torch
 
 from benchmarks.common import DOCS, cpu_description, onnx_variants, write_markdown
-from sdcnet.dataset_format import SampleStore, evenly_spread
+from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import MetricTable, frame_metrics, markdown_table
 from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
@@ -62,14 +62,13 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     store = SampleStore(args.data)
-    records = store.split(args.split)
-    if args.limit:
-        records = evenly_spread(records, args.limit)
+    records = store.split(args.split, args.limit)
     model, _ = load_checkpoint(args.checkpoint)
     methods = {"PyTorch eager FP32": (torch_model_fn(model), model.config.stride)}
     for name, runner in onnx_variants(args.onnx, args.threads).items():
         methods[name] = (runner.run, runner.stride)
-    methods["classical fill (floor)"] = (torch_model_fn(ClassicalFill()), 64)
+    fill = ClassicalFill()
+    methods["classical fill (floor)"] = (torch_model_fn(fill), fill.stride)
     results, latency = {}, {}
     for name, (fn, stride) in methods.items():
         table, ms = measure(fn, stride, store, records)

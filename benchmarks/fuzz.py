@@ -3,12 +3,13 @@
     python -m benchmarks.fuzz --max-examples 500 [--model PATH] [--seed 0]
 
 Starts the real service (``sdc-serve`` on 127.0.0.1, a free port; the shipped model, else
-SDCNet with random weights), reads its ``/openapi.json`` and runs schemathesis's examples,
-coverage (boundary values and each kind of invalid input the schema implies) and fuzzing
-phases on every operation, ``--max-examples`` cases per operation and phase, with all its
-checks: no 5xx, statuses, content types, headers and bodies as the schema says, schema-invalid
-requests refused, schema-valid ones accepted (positive ``POST /complete`` cases carry a real
-frame: ``tests/fixtures_runtime.real_files_for_valid_cases``), unexpected methods answered 405.
+SDCNet with random weights; one known target for ``POST /pose``), reads its ``/openapi.json``
+and runs schemathesis's examples, coverage (boundary values and each kind of invalid input the
+schema implies) and fuzzing phases on every operation, ``--max-examples`` cases per operation
+and phase, with all its checks: no 5xx, statuses, content types, headers and bodies as the
+schema says, schema-invalid requests refused, schema-valid ones accepted (positive
+``POST /complete`` and ``POST /pose`` cases carry a real frame:
+``sdcnet.devtools.fuzzing.real_files_for_valid_cases``), unexpected methods answered 405.
 
 Prints the statuses per operation and every failure with a curl command that reproduces it;
 exit status 1 on any failure. ``tests/test_fuzz.py`` runs the same with a few examples.
@@ -17,9 +18,11 @@ exit status 1 on any failure. ``tests/test_fuzz.py`` runs the same with a few ex
 from __future__ import annotations
 
 import argparse
+import tempfile
 from pathlib import Path
 
-from tests.fixtures_runtime import fuzz_api, temporary_service
+from sdcnet.devtools.fuzzing import fuzz_api, fuzz_targets
+from sdcnet.devtools.serving import temporary_service
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,9 +34,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--model", type=Path, default=None, help="ONNX model (default: shipped)")
     args = p.parse_args(argv)
 
-    with temporary_service(args.model, "--threads=2", "--max-pixels=1048576") as (service, name):
-        print(f"fuzzing {service.url} ({name}), {args.max_examples} examples, seed {args.seed}")
-        report = fuzz_api(service.url, args.max_examples, args.seed)
+    with tempfile.TemporaryDirectory() as work:
+        flags = ("--threads=2", "--max-pixels=1048576", f"--targets={fuzz_targets(Path(work))}")
+        with temporary_service(args.model, *flags) as (service, name):
+            print(f"fuzzing {service.url} ({name}), {args.max_examples} examples, seed {args.seed}")
+            report = fuzz_api(service.url, args.max_examples, args.seed)
     print(report.summary())
     return 1 if report.failures else 0
 

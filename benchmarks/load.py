@@ -2,10 +2,13 @@
 
     python -m benchmarks.load --requests 2000 --concurrency 32      # load: docs/benchmarks/load.*
     python -m benchmarks.load --soak --duration-s 300 --rate 4      # soak: docs/benchmarks/soak.*
+    python -m benchmarks.load --endpoint v2 ...     # Open Inference Protocol: load_v2.*, soak_v2.*
 
 Starts the real service (``sdc-serve`` on 127.0.0.1, a free port, default admission limit) on
 the given model (default: the shipped ``models/sdcnet.onnx``, else SDCNet with random weights),
-and sends generated frames (gray PNG + sparse ``.npy``, ``--size`` pixels square).
+and sends generated frames (``--size`` pixels square): gray PNG + sparse ``.npy`` to
+``POST /complete``, or with ``--endpoint v2`` raw gray + the returns as a list to
+``POST /v2/models/sdcnet/infer``, every output binary (as tritonclient sends by default).
 
 - warm-up (load): ``--warmup`` requests from as many clients as the service admits at once
   (``max_in_flight``), honouring Retry-After, then a tenth of the load as the load sends it,
@@ -47,8 +50,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
-from benchmarks.service_latency import Run, frame_bodies, send
-from tests.fixtures_runtime import memory_kib, open_fds, temporary_service
+from benchmarks.service_latency import ENDPOINTS, Run, frame_bodies, send
+from sdcnet.devtools.serving import memory_kib, open_fds, temporary_service
 
 MIB = 1024  # KiB
 
@@ -158,9 +161,10 @@ def main(argv: list[str] | None = None) -> int:
         help="RSS growth allowed after the warm-up: about one 1024 x 1024 request's buffers",
     )
     p.add_argument("--fd-slack", type=int, default=4)
+    p.add_argument("--endpoint", choices=ENDPOINTS, default="complete", help="which protocol")
     args = p.parse_args(argv)
 
-    bodies = frame_bodies(4, args.size)
+    bodies = frame_bodies(4, args.size, endpoint=args.endpoint)
     with temporary_service(args.model, "--threads=2") as (service, model):
         limits = httpx.get(f"{service.url}/model").json()["limits"]
         with Sampler(service.pid, args.interval) as sampler:
@@ -190,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
             end = settled(sampler)
         peak = memory_kib(service.pid)["peak"]
     result = verdict(run, warm, end, args.growth_limit_mib, args.fd_slack)
-    name = "soak" if args.soak else "load"
+    name = ("soak" if args.soak else "load") + ("_v2" if args.endpoint == "v2" else "")
     figures = {
         "model": model,
         "requests": len(run.shots),
@@ -240,6 +244,14 @@ def write_report(name: str, args: argparse.Namespace, f: dict, limits: dict) -> 
             "clients back to back, ignoring Retry-After (each refused client comes straight "
             "back); the figures below are the load's"
         )
+    if args.endpoint == "v2":
+        command += " --endpoint v2"
+        frames = (
+            "raw gray UINT8 + the returns as an FP32 list to `POST /v2/models/sdcnet/infer`, "
+            "binary full-frame answers"
+        )
+    else:
+        frames = "gray PNG + sparse float32 `.npy` to `POST /complete`, JSON answers"
     checks = "\n".join(f"| {k} | {'pass' if v else 'FAIL'} |" for k, v in f["checks"].items())
     statuses = ", ".join(f"{k}: {v}" for k, v in f["statuses"].items())
     rss, fds = f["rss_mib"], f["fds"]
@@ -247,9 +259,9 @@ def write_report(name: str, args: argparse.Namespace, f: dict, limits: dict) -> 
     body = f"""
 Real HTTP on 127.0.0.1 against `sdc-serve` (2 onnxruntime threads, at most
 {limits["max_in_flight"]} requests in flight, the others 503 at once) on {cpu_description()};
-model: {f["model"]}. Frames: 4 generated {args.size} x {args.size} spacecraft, gray PNG + sparse
-float32 `.npy`, JSON answers. {how}. The server's RSS (VmRSS) and open file descriptors are
-read from /proc every {args.interval:g} s. Regenerate: `{command}`.
+model: {f["model"]}. Frames: 4 generated {args.size} x {args.size} spacecraft, {frames}.
+{how}. The server's RSS (VmRSS) and open file descriptors are read from /proc every
+{args.interval:g} s. Regenerate: `{command}`.
 
 | figure | value |
 |---|---|

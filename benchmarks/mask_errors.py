@@ -22,7 +22,7 @@ import torch
 from tqdm import tqdm
 
 from benchmarks.common import DOCS, write_markdown
-from sdcnet.dataset_format import SampleStore, evenly_spread
+from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import frame_metrics, mask_error_bands
 from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
@@ -92,9 +92,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     store = SampleStore(args.data)
-    records = store.split(args.split)
-    if args.limit:
-        records = evenly_spread(records, args.limit)
+    records = store.split(args.split, args.limit)
     results = {str(c): summary(frame_rows(c, store, records)) for c in args.checkpoint}
     command = (
         f"python -m benchmarks.mask_errors --checkpoint {' '.join(map(str, args.checkpoint))} "

@@ -1,21 +1,24 @@
 """Service latency: real HTTP requests of a 1024 x 1024 frame at concurrency 1, 4 and 16.
 
     python -m benchmarks.service_latency [--model models/sdcnet.onnx] [--requests 60]
+                                         [--endpoint complete|v2]
 
 Starts the real service (``sdc-serve`` on 127.0.0.1, a free port, all CPUs as onnxruntime
 threads, the default admission limit) on the given model (default: the shipped
 ``models/sdcnet.onnx``, else SDCNet with random weights, said in the report), and sends it
 generated 1024 x 1024 frames (four spacecraft at different distances and attitudes, seeded;
-gray PNG + sparse ``.npy``, as ``sdc-client`` sends them). At each concurrency, ``--requests``
+gray PNG + sparse ``.npy`` to ``POST /complete``; with ``--endpoint v2``, raw gray and the
+returns as a list to ``POST /v2/models/sdcnet/infer``, every output binary, full frame, as
+tritonclient asks by default). At each concurrency, ``--requests``
 requests in all from that many clients, each on its own keep-alive connection, back to back;
 a client answered 503 waits for its Retry-After, as ``sdc-client`` does. Then, at concurrency
-1, each answer format.
+1, each answer format of ``POST /complete``.
 
 Reports p50 / p95 / p99 end-to-end latency of the 200 answers, throughput, the 503 count and
 the median split of a request between decode, queue, inference, encode (the service's
 ``Server-Timing``) and the rest (HTTP, multipart parsing, transfer), and whether the target
 (p50 <= 100 ms at concurrency 1, JSON answer) is met. Writes docs/benchmarks/service_latency.md,
-.json and .png.
+.json and .png (``service_latency_v2.*`` for the v2 endpoint).
 """
 
 from __future__ import annotations
@@ -38,13 +41,25 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
-from tests.fixtures_runtime import multipart_body, sample_files, samples, temporary_service
+from sdcnet.devtools.frames import generated_samples, multipart_body, sample_files, v2_body
+from sdcnet.devtools.fuzzing import V2_INFER
+from sdcnet.devtools.serving import temporary_service
+from sdcnet.returns import returns_from_dense
 
 PHASES = ("decode", "queue", "inference", "encode")
 TARGET_MS = 100.0  # p50 of a 1024 x 1024 frame at concurrency 1: the LIDAR's 10 Hz
 CONCURRENCY = (1, 4, 16)
 FORMATS = ("json", "npz", "ply")
-Body = tuple[bytes, str]  # multipart bytes, Content-Type
+ENDPOINTS = ("complete", "v2")
+
+
+@dataclass(frozen=True)
+class Body:
+    """One request, encoded once: its path, bytes and headers."""
+
+    path: str
+    content: bytes
+    headers: dict[str, str]
 
 
 @dataclass(frozen=True)
@@ -74,9 +89,20 @@ class Run:
         return [s for s in self.shots if s.status == 200]
 
 
-def frame_bodies(count: int, size: int = 1024, seed: int = 5) -> list[Body]:
-    """``count`` generated frames as multipart bodies (gray PNG, sparse .npy), encoded once."""
-    return [multipart_body(sample_files(s)) for s in samples(size, count, seed)]
+def frame_bodies(
+    count: int, size: int = 1024, seed: int = 5, endpoint: str = "complete"
+) -> list[Body]:
+    """``count`` generated frames as request bodies, encoded once: multipart forms (gray PNG,
+    sparse .npy) for ``POST /complete``, or binary v2 requests (gray UINT8, returns FP32)."""
+    bodies = []
+    for s in generated_samples(size, count, seed):
+        if endpoint == "v2":
+            content, headers = v2_body(s.gray, returns_from_dense(s.sparse))
+            bodies.append(Body(V2_INFER.split(" ")[1], content, headers))
+        else:
+            content, content_type = multipart_body(sample_files(s))
+            bodies.append(Body("/complete", content, {"content-type": content_type}))
+    return bodies
 
 
 def server_timing(header: str | None) -> dict[str, float]:
@@ -135,7 +161,7 @@ def _post(http: httpx.Client, url: str, body: Body, params: dict | None, t0: flo
     start = time.perf_counter()
     try:
         response = http.post(
-            f"{url}/complete", content=body[0], headers={"content-type": body[1]}, params=params
+            f"{url}{body.path}", content=body.content, headers=body.headers, params=params
         )
         response.read()
     except httpx.HTTPError as exc:
@@ -167,7 +193,7 @@ def summarise(run: Run) -> dict:
     }
 
 
-def plot(levels: dict[int, dict], path: Path) -> None:
+def plot(levels: dict[int, dict], path: Path, title: str) -> None:
     """Latency percentiles per concurrency, and the median split of a request."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
     x = np.arange(len(levels))
@@ -183,7 +209,7 @@ def plot(levels: dict[int, dict], path: Path) -> None:
         bottom += values
     right.set(xticks=x, xticklabels=[f"c={c}" for c in levels], ylabel="median ms per phase")
     right.legend(fontsize=8)
-    fig.suptitle("POST /complete, 1024 x 1024 frame, JSON answer")
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -214,49 +240,71 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--format-requests", type=int, default=20, help="per format, concurrency 1")
     p.add_argument("--frames", type=int, default=4, help="different generated frames")
     p.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)))
+    p.add_argument("--endpoint", choices=ENDPOINTS, default="complete", help="which protocol")
     args = p.parse_args(argv)
 
-    bodies = frame_bodies(args.frames)
+    v2 = args.endpoint == "v2"
+    bodies = frame_bodies(args.frames, endpoint=args.endpoint)
     with temporary_service(args.model, f"--threads={args.threads}") as (service, model):
         meta = httpx.get(f"{service.url}/model").json()
         send(service.url, bodies, 2 * len(bodies), 1)  # warm-up: every frame twice
         levels = {c: summarise(send(service.url, bodies, args.requests, c)) for c in CONCURRENCY}
         formats = {
             f: summarise(send(service.url, bodies, args.format_requests, 1, params={"format": f}))
-            for f in FORMATS
+            for f in ([] if v2 else FORMATS)
         }
     for c, r in levels.items():
         print(f"concurrency {c}: {json.dumps(r)}", flush=True)
     p50 = levels[1]["p50_ms"]
     verdict = "met" if p50 <= TARGET_MS else "not met"
-    command = f"python -m benchmarks.service_latency --requests {args.requests}" + (
-        f" --model {args.model}" if args.model else ""
-    )
+    command = f"python -m benchmarks.service_latency --requests {args.requests}"
+    command += f" --model {args.model}" if args.model else ""
+    command += " --endpoint v2" if v2 else ""
+    if v2:
+        request = (
+            "raw gray UINT8 + the returns as an FP32 list (a few KiB) in one binary v2 request "
+            "to `POST /v2/models/sdcnet/infer`, every output asked binary and full frame (as "
+            "tritonclient asks by default): about 5.5 MB back"
+        )
+        answer = "v2 binary answer"
+    else:
+        request = (
+            "gray PNG + sparse float32 `.npy` (4 MiB) per request to `POST /complete`; the JSON "
+            "answer is about 7 MB"
+        )
+        answer = "JSON answer"
     body = f"""
 Real HTTP on 127.0.0.1: `sdc-serve` in its own process ({args.threads} onnxruntime threads,
 at most {meta["limits"]["max_in_flight"]} requests in flight, the rest 503), clients in another
 process on the same {cpu_description()}. Model: {model} (version `{meta["version"]}`,
-{meta["provider"]}). Frames: {args.frames} generated 1024 x 1024 spacecraft (seed 5), gray PNG +
-sparse float32 `.npy` (4 MiB) per request; the JSON answer is about 7 MB. Each client holds a
-keep-alive connection and sends back to back; after a 503 it waits for Retry-After. Latency:
-end-to-end at the client, 200 answers only; phases: medians of the service's `Server-Timing`,
-"rest" = end-to-end minus the four phases (HTTP, multipart parsing, upload and download).
-Regenerate: `{command}`.
+{meta["provider"]}). Frames: {args.frames} generated 1024 x 1024 spacecraft (seed 5), {request}.
+Each client holds a keep-alive connection and sends back to back; after a 503 it waits for
+Retry-After. Latency: end-to-end at the client, 200 answers only; phases: medians of the
+service's `Server-Timing`, "rest" = end-to-end minus the four phases (HTTP, body parsing,
+upload and download). Regenerate: `{command}`.
 
-**Target: p50 <= {TARGET_MS:.0f} ms for a 1024 x 1024 frame at concurrency 1 (JSON answer):
+**Target: p50 <= {TARGET_MS:.0f} ms for a 1024 x 1024 frame at concurrency 1 ({answer}):
 {verdict}** (p50 {p50:.1f} ms).
 
 {table({str(c): r for c, r in levels.items()}, "concurrency")}
-
+"""
+    if formats:
+        body += f"""
 Answer formats at concurrency 1 ({args.format_requests} requests each; phases in ms):
 
 {table(formats, "format")}
 """
-    print(write_markdown("service_latency", "Service latency (HTTP, 1024 x 1024)", body))
+    name = "service_latency_v2" if v2 else "service_latency"
+    title = "Service latency (HTTP, 1024 x 1024" + (", Open Inference Protocol)" if v2 else ")")
+    print(write_markdown(name, title, body))
     results = {"model": model, "target_met": p50 <= TARGET_MS, "concurrency": levels}
     results["formats"] = formats
-    (DOCS / "service_latency.json").write_text(json.dumps(results, indent=1))
-    plot(levels, DOCS / "service_latency.png")
+    (DOCS / f"{name}.json").write_text(json.dumps(results, indent=1))
+    plot(
+        levels,
+        DOCS / f"{name}.png",
+        f"POST {bodies[0].path}, 1024 x 1024 frame, {answer}",
+    )
     return 0
 
 

@@ -1,11 +1,16 @@
-"""Python API of the sdcnet service, on httpx: ``Client(url).complete(gray, sparse)``,
+"""Python API of the sdcnet service: ``Client(url).complete(gray, sparse)``,
 ``Client(url).pose(gray, sparse, target)``.
 
-Needs numpy, OpenCV and httpx only (no torch, onnxruntime or FastAPI). Inputs may be arrays,
-file paths or raw file bytes; answers come back as numpy arrays (the service's npz format,
-which is exact and compact). Connection errors and 503 answers are retried with exponential
-backoff (503's Retry-After honoured); any other error answer raises ``ServiceError`` with the
-service's code and message.
+Needs numpy and OpenCV only (no torch, onnxruntime or FastAPI; HTTP is the standard library's,
+``sdcnet.client.transport``). Inputs may be arrays,
+file paths or raw file bytes; the LIDAR returns may be a dense map or a list of returns. They
+travel compactly (``sdcnet.client.protocol``): the raw gray image and the returns as a list,
+over the service's Open Inference Protocol route, on one keep-alive connection; the answer
+comes back as the spacecraft's region and is rebuilt into full-frame numpy arrays, the same
+bit for bit as the service's full-frame answers. ``pose`` sends ``POST /pose``'s form
+(``sdcnet.client.form``): the image file and the returns, as a list too. Connection errors and
+503 answers are retried with exponential backoff (503's Retry-After honoured); any other error
+answer raises ``ServiceError`` with the service's code and message.
 """
 
 from __future__ import annotations
@@ -18,25 +23,19 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import cv2
-import httpx
 import numpy as np
 
-from sdcnet.npyio import npy_bytes
+from sdcnet.client import form, protocol
+from sdcnet.client.transport import TRANSPORT_ERRORS, ConnectTimeoutError, Reply, Transport
+from sdcnet.pipeline import to_gray
+from sdcnet.returns import ReturnsError, check_returns, parse_returns_csv, returns_from_dense
 from sdcnet.rigid import Pose, parse_pose
 
 DEFAULT_URL = os.environ.get("SDCNET_URL", "http://127.0.0.1:8000")
 
-#: Transport failures worth another try: the request did not get through, or the answer was
-#: cut off. Completing a frame has no side effect, so a repeat is harmless.
-_RETRYABLE = (
-    httpx.ConnectError,
-    httpx.ConnectTimeout,
-    httpx.RemoteProtocolError,
-    httpx.ReadError,
-    httpx.WriteError,
-)
 
 Source = str | Path | bytes | np.ndarray
 
@@ -122,48 +121,115 @@ def read_file(path: str | Path, what: str = "input") -> bytes:
         raise InputError(f"cannot read {what} file {path}: {exc.strerror or exc}") from None
 
 
-def _gray_upload(gray: Source) -> tuple[str, bytes]:
+NPY_MAGIC = b"\x93NUMPY"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def gray_array(gray: Source) -> np.ndarray:
+    """The gray image as uint8/uint16 (H, W): the array itself, or an image file (PNG, TIFF,
+    JPEG, BMP; path or bytes) decoded as the service decodes it, colour converted to gray."""
     if isinstance(gray, np.ndarray):
-        if gray.dtype not in (np.uint8, np.uint16) or gray.ndim not in (2, 3):
+        image = gray
+    else:
+        data = gray if isinstance(gray, bytes) else read_file(gray, "gray image")
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise InputError("cannot decode the gray image (PNG, TIFF, JPEG or BMP)")
+    if image.dtype not in (np.uint8, np.uint16) or image.ndim not in (2, 3):
+        raise InputError(
+            f"gray must be an 8- or 16-bit image (H, W), got {image.dtype} {image.shape}"
+        )
+    return to_gray(image)
+
+
+def _load_npy(data: bytes) -> np.ndarray:
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except (ValueError, EOFError, OSError) as exc:
+        raise InputError(f"cannot read the sparse .npy: {exc}") from None
+
+
+def _sparse_array(data: bytes, depth_scale: float | None, label: str) -> np.ndarray:
+    """A dense map or a returns list from file bytes: .npy, 16-bit PNG (times ``depth_scale``
+    metres per unit) or CSV (``row,col,z_m``; its errors start with ``label``)."""
+    if data.startswith(NPY_MAGIC):
+        return _load_npy(data)
+    if data.startswith(PNG_SIGNATURE):
+        if depth_scale is None:
+            raise InputError("a 16-bit PNG sparse map needs depth_scale (metres per unit)")
+        units = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if units is None or units.dtype != np.uint16 or units.ndim != 2:
+            raise InputError("a sparse PNG must be single-channel 16-bit")
+        return units.astype(np.float32) * np.float32(depth_scale)
+    try:
+        return parse_returns_csv(data.decode("utf-8"), label)
+    except UnicodeDecodeError:
+        raise InputError(
+            "sparse must be a .npy file, a 16-bit PNG (with depth_scale) or a CSV of returns "
+            "(header row,col,z_m)"
+        ) from None
+
+
+def returns_list(
+    sparse: Source | None, returns: np.ndarray | None, shape: tuple[int, int], depth_scale=None
+) -> np.ndarray:
+    """The LIDAR returns as float32 (N, 3) (row, column, Z metres) for a frame of ``shape``:
+    ``returns`` as given, or those of ``sparse``: a dense (H, W) map in metres (array, .npy
+    or 16-bit PNG with ``depth_scale``) or a list ((N, 3) array or .npy, CSV file)."""
+    if (sparse is None) == (returns is None):
+        raise InputError("give the LIDAR returns once: sparse (map or file) or returns (list)")
+    label = str(sparse) if isinstance(sparse, str | Path) else "LIDAR returns"
+    try:
+        if returns is None and isinstance(sparse, np.ndarray):
+            returns = sparse
+        elif returns is None:
+            if isinstance(sparse, bytes):
+                data = sparse
+            else:
+                csv = Path(sparse).suffix.lower() == ".csv"
+                data = read_file(sparse, "LIDAR returns" if csv else "sparse depth")
+            returns = _sparse_array(data, depth_scale, label)
+        is_map = returns.ndim == 2 and returns.shape == shape
+        if is_map and returns.dtype not in (np.float32, np.float64):
             raise InputError(
-                f"gray array must be uint8 or uint16 (H, W), got {gray.dtype} {gray.shape}"
+                f"a sparse map must hold float32 or float64 metres, got {returns.dtype}"
             )
-        ok, png = cv2.imencode(".png", gray)
-        if not ok:
-            raise InputError(f"cannot encode the gray array {gray.shape} as PNG")
-        return "gray.png", png.tobytes()
-    if isinstance(gray, bytes):
-        return "gray", gray
-    return Path(gray).name, read_file(gray, "gray image")
-
-
-def _sparse_upload(sparse: Source) -> tuple[str, bytes]:
-    if isinstance(sparse, np.ndarray):
-        if sparse.dtype not in (np.float32, np.float64) or sparse.ndim != 2:
+        if returns.ndim != 2 or not (is_map or returns.shape[1] == 3):
             raise InputError(
-                f"sparse array must be float32 or float64 (H, W) metres, got "
-                f"{sparse.dtype} {sparse.shape}"
+                f"sparse must be a (H, W) = {shape} map in metres or an (N, 3) list of "
+                f"returns, got shape {returns.shape}"
             )
-        return "sparse.npy", npy_bytes(sparse)
-    if isinstance(sparse, bytes):
-        return "sparse", sparse
-    return Path(sparse).name, read_file(sparse, "sparse depth")
+        return returns_from_dense(returns) if is_map else check_returns(returns, shape)
+    except ReturnsError as exc:  # its message names the return (and the line of a file)
+        message = str(exc)
+        raise InputError(
+            message if message.startswith(f"{label}: ") else f"{label}: {message}"
+        ) from None
 
 
-def _frame_form(
-    gray: Source, sparse: Source, outlier_removal: bool, **numbers: float | None
-) -> tuple[dict, dict[str, str]]:
-    """The multipart files and fields of one frame (``POST /complete``, ``POST /pose``)."""
-    files = {"gray": _gray_upload(gray), "sparse": _sparse_upload(sparse)}
-    data = {k: repr(float(v)) for k, v in numbers.items() if v is not None}
-    data["outlier_removal"] = "true" if outlier_removal else "false"
-    return files, data
+def _gray_file(gray: Source) -> tuple[np.ndarray, bytes]:
+    """The gray image's pixels (as ``gray_array``) and its file's bytes: the caller's own file,
+    or a PNG of an array."""
+    if not isinstance(gray, np.ndarray):
+        data = gray if isinstance(gray, bytes) else read_file(gray, "gray image")
+        return gray_array(data), data
+    image = gray_array(gray)
+    ok, png = cv2.imencode(".png", image)
+    if not ok:
+        raise InputError(f"cannot encode the gray array {image.shape} as PNG")
+    return image, png.tobytes()
 
 
-def _error_of(response: httpx.Response) -> ServiceError:
+def _error_of(response: Reply) -> ServiceError:
+    """The service's error: its own shape ``{"error": {"code", "message"}}``, or the
+    Open Inference Protocol's ``{"error": "message"}`` with the code in a header."""
+    status = response.status_code
     try:
         error = response.json()["error"]
-        return ServiceError(response.status_code, error["code"], error["message"])
+        if isinstance(error, str):
+            code = response.headers.get("sdcnet-error-code", f"http_{status}")
+            return ServiceError(status, code, error)
+        return ServiceError(status, error["code"], error["message"])
     except (ValueError, KeyError, TypeError):
         text = response.text.strip()[:200] or response.reason_phrase
         return ServiceError(response.status_code, f"http_{response.status_code}", text)
@@ -189,9 +255,7 @@ class Client:
         self.retries = retries
         self.backoff_s = backoff_s
         self.max_backoff_s = max_backoff_s
-        self._http = httpx.Client(
-            base_url=self.url, timeout=httpx.Timeout(timeout_s, connect=min(timeout_s, 5.0))
-        )
+        self._http = Transport(self.url, timeout_s, connect_timeout_s=min(timeout_s, 5.0))
 
     def __enter__(self) -> Client:
         return self
@@ -209,7 +273,7 @@ class Client:
             wait = self.backoff_s * 2**attempt * random.uniform(0.5, 1.0)
         time.sleep(min(wait, self.max_backoff_s))
 
-    def _request(self, method: str, path: str, retry: bool = True, **kwargs) -> httpx.Response:
+    def _request(self, method: str, path: str, retry: bool = True, **kwargs) -> Reply:
         """The answer to one request, retried on connection errors and 503 when ``retry``;
         raises ``ServiceUnreachableError`` or ``ServiceError``."""
         attempts = self.retries + 1 if retry else 1
@@ -218,17 +282,23 @@ class Client:
             last = attempt == attempts - 1
             try:
                 response = self._http.request(method, path, **kwargs)
-            except _RETRYABLE as exc:
+            except TimeoutError as exc:
+                if not isinstance(exc, ConnectTimeoutError):  # a slow answer: not retried
+                    raise ServiceUnreachableError(
+                        f"no answer from {self.url}{path} within {self._http.timeout_s} s"
+                    ) from exc
+                unreachable = exc
+            except TRANSPORT_ERRORS as exc:  # refused, reset, cut off, unknown host
+                unreachable = exc
+            else:
+                unreachable = None
+            if unreachable is not None:
                 if last:
                     raise ServiceUnreachableError(
-                        f"cannot reach the sdcnet service at {self.url}: {exc or type(exc)}"
-                        " (is sdc-serve running there?)"
-                    ) from exc
+                        f"cannot reach the sdcnet service at {self.url}: "
+                        f"{unreachable or type(unreachable).__name__} (is sdc-serve running there?)"
+                    ) from unreachable
                 self._pause(attempt, None)
-            except httpx.TimeoutException as exc:
-                raise ServiceUnreachableError(
-                    f"no answer from {self.url}{path} within {self._http.timeout.read} s"
-                ) from exc
             else:
                 if response.status_code != 503 or last:
                     if response.is_error:
@@ -240,55 +310,51 @@ class Client:
     def complete(
         self,
         gray: Source,
-        sparse: Source,
+        sparse: Source | None = None,
         *,
+        returns: np.ndarray | None = None,
         fx: float | None = None,
         fy: float | None = None,
         cx: float | None = None,
         cy: float | None = None,
         depth_scale: float | None = None,
         outlier_removal: bool = False,
+        float16_depth: bool = False,
     ) -> Completion:
         """Complete one frame.
 
         ``gray``: uint8/uint16 array or an image file (PNG, TIFF, JPEG, BMP) as path or bytes.
-        ``sparse``: float32/float64 (H, W) metres (0 = no return), or a ``.npy`` file, or a
-        16-bit PNG with ``depth_scale`` (metres per unit). Intrinsics in pixels; those not
-        given are the model's, scaled to the image size.
+        The LIDAR returns, once: ``sparse``, a float32/float64 (H, W) map in metres (0 = no
+        return) as an array, a ``.npy`` file or a 16-bit PNG with ``depth_scale`` (metres per
+        unit), or a list as an (N, 3) array or ``.npy`` or a CSV file (``row,col,z_m``); or
+        ``returns``, an (N, 3) array (row, column, Z metres). Intrinsics in pixels; those not
+        given are the model's, scaled to the image size. ``float16_depth`` halves the depth's
+        bytes at a precision of 8 mm (``sdcnet.compact``); by default the depth is exact.
         """
-        files, data = _frame_form(
-            gray,
-            sparse,
-            fx=fx,
-            fy=fy,
-            cx=cx,
-            cy=cy,
-            depth_scale=depth_scale,
-            outlier_removal=outlier_removal,
-        )
+        image = gray_array(gray)
+        listed = returns_list(sparse, returns, image.shape, depth_scale)
+        options = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
+        parameters: dict[str, Any] = {k: float(v) for k, v in options.items() if v is not None}
+        parameters["outlier_removal"] = outlier_removal
+        body, headers = protocol.request_body(image, listed, parameters, float16_depth)
         start = time.perf_counter()
-        response = self._request(
-            "POST", "/complete", params={"format": "npz"}, files=files, data=data
-        )
+        response = self._request("POST", protocol.PATH, content=body, headers=headers)
         latency = time.perf_counter() - start
         try:
-            with np.load(io.BytesIO(response.content), allow_pickle=False) as npz:
-                return Completion(
-                    depth=npz["depth.npy"],
-                    mask=npz["mask.npy"].astype(bool),
-                    points=npz["points.npy"],
-                    meta=json.loads(npz["meta.json"]),
-                    latency_s=latency,
-                )
-        except (ValueError, KeyError, OSError) as exc:
-            raise ClientError(f"unexpected answer from {self.url}/complete: {exc}") from exc
+            answer = protocol.read_answer(
+                response.content, response.headers.get(protocol.HEADER_LENGTH), image.shape
+            )
+        except protocol.AnswerError as exc:
+            raise ClientError(f"unexpected answer from {self.url}{protocol.PATH}: {exc}") from exc
+        return Completion(answer.depth, answer.mask, answer.points, answer.meta, latency)
 
     def pose(
         self,
         gray: Source,
-        sparse: Source,
+        sparse: Source | None,
         target: str,
         *,
+        returns: np.ndarray | None = None,
         init: Pose | dict | None = None,
         fx: float | None = None,
         fy: float | None = None,
@@ -299,22 +365,19 @@ class Client:
     ) -> PoseAnswer:
         """The pose of the known ``target`` in one frame (``POST /pose``): from scratch, or
         refined from ``init`` (a previous answer's ``pose``, a ``Pose`` or its JSON dict) to
-        track. Inputs as for ``complete``."""
-        files, data = _frame_form(
-            gray,
-            sparse,
-            fx=fx,
-            fy=fy,
-            cx=cx,
-            cy=cy,
-            depth_scale=depth_scale,
-            outlier_removal=outlier_removal,
-        )
-        data["target"] = target
+        track. The frame's inputs as for ``complete`` (``sparse=None`` with ``returns``); the
+        returns travel as a list, the gray image as its file (a PNG of an array)."""
+        image, gray_file = _gray_file(gray)
+        listed = returns_list(sparse, returns, image.shape, depth_scale)
+        options = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
+        fields = {k: repr(float(v)) for k, v in options.items() if v is not None}
+        fields["outlier_removal"] = "true" if outlier_removal else "false"
+        fields["target"] = target
         if init is not None:
-            data["init"] = json.dumps(init.as_dict() if isinstance(init, Pose) else init)
+            fields["init"] = json.dumps(init.as_dict() if isinstance(init, Pose) else init)
+        body, headers = form.pose_form(gray_file, listed, fields)
         start = time.perf_counter()
-        response = self._request("POST", "/pose", files=files, data=data)
+        response = self._request("POST", "/pose", content=body, headers=headers)
         latency = time.perf_counter() - start
         try:
             answer = response.json()
@@ -324,7 +387,7 @@ class Client:
 
     def target_points(self, name: str) -> np.ndarray:
         """(N, 3) samples of a known target's surface, its frame, metres (to draw it)."""
-        points = self._request("GET", f"/targets/{name}").json()["points"]
+        points = self._request("GET", f"/targets/{quote(name, safe='')}").json()["points"]
         return np.asarray(points, np.float64).reshape(-1, 3)
 
     def health(self) -> dict[str, bool]:

@@ -3,12 +3,13 @@
 A batch input is one of:
 
 - a folder of pairs: each gray image ``NAME.png`` (or .tif, .tiff, .jpg, .jpeg, .bmp) with
-  its sparse map ``NAME.npy`` (metres) or ``NAME.sparse.png`` (16-bit, needs a depth scale);
+  its LIDAR returns ``NAME.npy`` (map in metres), ``NAME.sparse.png`` (16-bit map, needs a
+  depth scale) or ``NAME.csv`` (list: ``row,col,z_m``);
 - a JSON-lines manifest, one pair per line: ``{"gray": PATH, "sparse": PATH}`` with optional
   ``"id"``, ``"depth_scale"``, ``"fx"``, ``"fy"``, ``"cx"``, ``"cy"``; paths are relative to
   the manifest's folder;
-- an sdcnet dataset (``sdc-data generate``): its folder or its ``manifest.jsonl``, whose lines
-  name ``samples/<id>.npz`` files holding both arrays; ``split`` selects train / val / test.
+- an sdcnet dataset (``sdc-data generate``): its folder or its ``manifest.jsonl``, read with
+  ``sdcnet.dataset_format.SampleStore``; ``split`` selects train / val / test.
 
 Every pair gets its own output folder ``OUT/<id>/`` with the files of ``sdc-client infer``. A
 pair that fails is reported and the others go on.
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import json
 import time
+import zipfile
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,8 +28,17 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from sdcnet.client.api import Client, ClientError, Completion, InputError, Source, read_file
-from sdcnet.client.outputs import local_image, write_outputs
+from sdcnet.client.api import (
+    Client,
+    ClientError,
+    Completion,
+    InputError,
+    Source,
+    gray_array,
+    read_file,
+)
+from sdcnet.client.outputs import write_outputs
+from sdcnet.dataset_format import SampleStore, read_sample
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 SPARSE_PNG_SUFFIX = ".sparse.png"
@@ -47,10 +58,10 @@ class Pair:
         """What ``Client.complete`` takes: file bytes, or the arrays of a dataset sample."""
         if self.gray == self.sparse and self.gray.suffix == ".npz":
             try:
-                with np.load(self.gray, allow_pickle=False) as npz:
-                    return npz["gray.npy"], npz["sparse.npy"]
-            except (OSError, ValueError, KeyError) as exc:
+                sample = read_sample(self.gray)
+            except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
                 raise InputError(f"cannot read dataset sample {self.gray}: {exc}") from exc
+            return sample.gray, sample.sparse
         return read_file(self.gray, "gray image"), read_file(self.sparse, "sparse depth")
 
 
@@ -61,8 +72,16 @@ def _folder_pairs(folder: Path) -> list[Pair]:
         if path.suffix.lower() not in IMAGE_SUFFIXES or name.endswith(SPARSE_PNG_SUFFIX):
             continue
         stem = path.with_suffix("")
-        npy, png = stem.with_suffix(".npy"), Path(f"{stem}{SPARSE_PNG_SUFFIX}")
-        pairs.append(Pair(stem.name, path, npy if npy.exists() or not png.exists() else png))
+        found = [
+            candidate
+            for candidate in (
+                stem.with_suffix(".npy"),
+                Path(f"{stem}{SPARSE_PNG_SUFFIX}"),
+                stem.with_suffix(".csv"),
+            )
+            if candidate.exists()
+        ]
+        pairs.append(Pair(stem.name, path, found[0] if found else stem.with_suffix(".npy")))
     return pairs
 
 
@@ -76,11 +95,7 @@ def _manifest_pairs(manifest: Path, split: str | None) -> list[Pair]:
             record: dict[str, Any] = json.loads(line)
             if split is not None and record.get("split") != split:
                 continue
-            if "file" in record:  # an sdcnet dataset sample
-                sample = root / record["file"]
-                gray = sparse = sample
-            else:
-                gray, sparse = root / record["gray"], root / record["sparse"]
+            gray, sparse = root / record["gray"], root / record["sparse"]
             options = {k: float(record[k]) for k in _OPTIONS if record.get(k) is not None}
         except (ValueError, KeyError, TypeError) as exc:
             raise InputError(f"{manifest} line {number}: not a pair ({exc})") from exc
@@ -89,8 +104,20 @@ def _manifest_pairs(manifest: Path, split: str | None) -> list[Pair]:
     return pairs
 
 
+def _dataset_pairs(root: Path, split: str | None) -> list[Pair]:
+    try:
+        store = SampleStore(root)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot read the dataset {root}: {exc}") from exc
+    records = store.records if split is None else store.split(split)
+    return [Pair(r["id"], root / r["file"], root / r["file"]) for r in records]
+
+
 def find_pairs(source: Path, split: str | None = None) -> list[Pair]:
     """The pairs of a folder, a JSON-lines manifest or a dataset (see the module doc)."""
+    dataset = source if source.is_dir() else source.parent
+    if (dataset / "dataset.json").is_file() and source in (dataset, dataset / "manifest.jsonl"):
+        return _dataset_pairs(dataset, split)
     if source.is_dir():
         manifest = source / "manifest.jsonl"
         return _manifest_pairs(manifest, split) if manifest.is_file() else _folder_pairs(source)
@@ -130,6 +157,7 @@ def run_batch(
     outlier_removal: bool = False,
     defaults: dict[str, float] | None = None,
     progress: bool = True,
+    float16_depth: bool = False,
 ) -> BatchReport:
     """Complete every pair, at most ``concurrency`` requests at once, writing ``out/<name>/``.
     ``defaults`` (depth_scale, intrinsics) apply where a pair does not set its own."""
@@ -141,8 +169,11 @@ def run_batch(
         if pair.sparse.suffix.lower() != ".png":
             options.pop("depth_scale", None)  # a scale is for 16-bit PNG maps only
         options.update(pair.options)
-        result = client.complete(gray, sparse, outlier_removal=outlier_removal, **options)
-        write_outputs(out / pair.name, local_image(gray), result)
+        image = gray_array(gray)
+        result = client.complete(
+            image, sparse, outlier_removal=outlier_removal, float16_depth=float16_depth, **options
+        )
+        write_outputs(out / pair.name, image, result)
         return result
 
     start = time.perf_counter()

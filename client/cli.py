@@ -1,6 +1,8 @@
 """``sdc-client``: talk to an sdcnet service from the command line.
 
     sdc-client infer GRAY SPARSE [--out DIR] [--fx F --fy F --cx C --cy C] [--depth-scale S]
+                                 [--float16-depth]
+        SPARSE: a .npy (metres), a 16-bit PNG (--depth-scale) or a row,col,z_m returns CSV
     sdc-client batch DIR_OR_MANIFEST --out DIR [--concurrency N] [--split test]
     sdc-client pose GRAY SPARSE --target NAME [--init POSE_JSON] [--out DIR] [intrinsics...]
     sdc-client health
@@ -18,17 +20,18 @@ import json
 import sys
 from pathlib import Path
 
+from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.client.api import (
     DEFAULT_URL,
     Client,
     ClientError,
     InputError,
-    ServiceError,
     ServiceUnreachableError,
+    gray_array,
     read_file,
 )
 from sdcnet.client.batch import find_pairs, run_batch
-from sdcnet.client.outputs import gray_for_display, local_image, summary, write_outputs
+from sdcnet.client.outputs import gray_for_display, summary, write_outputs
 from sdcnet.client.pose_outputs import pose_summary, read_init, write_pose_outputs
 
 EXIT_OK, EXIT_FAILED_PAIRS, EXIT_INPUT, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2, 3, 4
@@ -43,6 +46,7 @@ def _connection_options() -> argparse.ArgumentParser:
     common.add_argument(
         "--retries", type=int, default=3, help="retries on connection errors and 503"
     )
+    add_debug_flag(common)
     return common
 
 
@@ -61,6 +65,16 @@ def _frame_options() -> argparse.ArgumentParser:
     return frame
 
 
+def _depth_options() -> argparse.ArgumentParser:
+    depth = argparse.ArgumentParser(add_help=False)
+    depth.add_argument(
+        "--float16-depth",
+        action="store_true",
+        help="depth as float16 on the wire: half the bytes, within 8 mm (default: exact)",
+    )
+    return depth
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="sdc-client",
@@ -70,15 +84,19 @@ def parser() -> argparse.ArgumentParser:
         "3 error answer from the service, 4 service unreachable or not ready",
     )
     sub = p.add_subparsers(dest="command", required=True)
-    common, frame = _connection_options(), _frame_options()
+    common, frame, depth = _connection_options(), _frame_options(), _depth_options()
     infer = sub.add_parser(
-        "infer", parents=[common, frame], help="complete one frame and write its files"
+        "infer", parents=[common, frame, depth], help="complete one frame and write its files"
     )
     infer.add_argument("gray", type=Path, help="gray image: PNG, TIFF, JPEG or BMP")
-    infer.add_argument("sparse", type=Path, help=".npy (metres) or 16-bit PNG (--depth-scale)")
+    infer.add_argument(
+        "sparse",
+        type=Path,
+        help=".npy (metres), 16-bit PNG (--depth-scale) or returns CSV (row,col,z_m per line)",
+    )
     infer.add_argument("--out", type=Path, default=Path("sdcnet-out"), help="output folder")
     batch = sub.add_parser(
-        "batch", parents=[common, frame], help="complete many frames, a folder per frame"
+        "batch", parents=[common, frame, depth], help="complete many frames, a folder per frame"
     )
     batch.add_argument("source", type=Path, help="folder of pairs, JSON-lines manifest or dataset")
     batch.add_argument("--out", type=Path, required=True, help="output folder")
@@ -89,7 +107,11 @@ def parser() -> argparse.ArgumentParser:
         "pose", parents=[common, frame], help="a known target's pose in one frame; preview"
     )
     pose.add_argument("gray", type=Path, help="gray image: PNG, TIFF, JPEG or BMP")
-    pose.add_argument("sparse", type=Path, help=".npy (metres) or 16-bit PNG (--depth-scale)")
+    pose.add_argument(
+        "sparse",
+        type=Path,
+        help=".npy (metres), 16-bit PNG (--depth-scale) or returns CSV (row,col,z_m per line)",
+    )
     pose.add_argument("--target", required=True, help="a known target's name (sdc-client model)")
     pose.add_argument(
         "--init", help="to track: a previous pose as JSON, or a pose.json this command wrote"
@@ -106,12 +128,15 @@ def _frame_kwargs(args: argparse.Namespace) -> dict[str, float]:
 
 
 def cmd_infer(client: Client, args: argparse.Namespace) -> int:
-    gray = read_file(args.gray, "gray image")
-    sparse = read_file(args.sparse, "sparse depth")
+    gray = gray_array(args.gray)
     result = client.complete(
-        gray, sparse, outlier_removal=args.outlier_removal, **_frame_kwargs(args)
+        gray,
+        args.sparse,  # a file: the client reads it (a CSV's errors name it, line and return)
+        outlier_removal=args.outlier_removal,
+        float16_depth=args.float16_depth,
+        **_frame_kwargs(args),
     )
-    written = write_outputs(args.out, local_image(gray), result)
+    written = write_outputs(args.out, gray, result)
     print(summary(result, client.url, written))
     return EXIT_OK
 
@@ -128,6 +153,7 @@ def cmd_batch(client: Client, args: argparse.Namespace) -> int:
         args.out,
         concurrency=args.concurrency,
         outlier_removal=args.outlier_removal,
+        float16_depth=args.float16_depth,
         defaults=_frame_kwargs(args),
         progress=not args.no_progress,
     )
@@ -137,21 +163,20 @@ def cmd_batch(client: Client, args: argparse.Namespace) -> int:
 
 def cmd_pose(client: Client, args: argparse.Namespace) -> int:
     gray = read_file(args.gray, "gray image")
-    sparse = read_file(args.sparse, "sparse depth")
     try:
         init = read_init(args.init) if args.init else None
     except (OSError, ValueError) as exc:
         raise InputError(f"--init is neither pose JSON nor a readable pose.json: {exc}") from None
     answer = client.pose(
         gray,
-        sparse,
+        args.sparse,  # a file: the client reads it (a CSV's errors name it, line and return)
         args.target,
         init=init,
         outlier_removal=args.outlier_removal,
         **_frame_kwargs(args),
     )
     points = client.target_points(args.target)
-    written = write_pose_outputs(args.out, gray_for_display(local_image(gray)), answer, points)
+    written = write_pose_outputs(args.out, gray_for_display(gray_array(gray)), answer, points)
     print(pose_summary(answer, args.target, client.url, written))
     return EXIT_OK
 
@@ -179,23 +204,22 @@ COMMANDS = {
 }
 
 
+#: Exit status of each kind of error (the first that matches); anything else is a bug.
+USER_ERRORS = {
+    InputError: EXIT_INPUT,
+    ServiceUnreachableError: EXIT_UNREACHABLE,
+    ClientError: EXIT_SERVICE,  # ServiceError, and answers the client cannot read
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    try:
+
+    def command() -> int:
         with Client(args.url, timeout_s=args.timeout, retries=args.retries) as client:
             return COMMANDS[args.command](client, args)
-    except InputError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_INPUT
-    except ServiceError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_SERVICE
-    except ServiceUnreachableError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_UNREACHABLE
-    except ClientError as exc:
-        print(f"sdc-client: {exc}", file=sys.stderr)
-        return EXIT_SERVICE
+
+    return run_command("sdc-client", command, USER_ERRORS, args.debug)
 
 
 if __name__ == "__main__":

@@ -13,23 +13,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sdcnet.client.api import Completion, InputError, Source, read_file
+from sdcnet.client.api import Completion
 from sdcnet.pointcloud import write_ply
 from sdcnet.visualize import colorize_depth, gray_bgr, labelled, montage, object_crop, side_view
 
 OUTPUT_FILES = ("depth.npy", "mask.png", "points.ply", "preview.png")
-
-
-def local_image(source: Source) -> np.ndarray:
-    """The gray image as an array (for the preview): decoded from a file or bytes as the
-    service does (OpenCV, IMREAD_UNCHANGED), or the array itself."""
-    if isinstance(source, np.ndarray):
-        return source
-    data = source if isinstance(source, bytes) else read_file(source, "gray image")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise InputError("cannot decode the gray image locally for the preview")
-    return image
 
 
 def gray_for_display(image: np.ndarray) -> np.ndarray:

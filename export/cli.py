@@ -1,7 +1,9 @@
 """``sdc-export``: checkpoint -> self-contained ONNX model, with the parity check.
 
 The parity frames are rendered on the spot by the data generator (seeded), so the check needs
-no dataset on disk. A failed check removes nothing but exits non-zero with the figures.
+no dataset on disk. The graph is written next to ``--out`` under a temporary name and takes
+its place only once the check has passed: a failed check leaves ``--out`` as it was (the
+shipped model, say) and exits 1 with the figures.
 """
 
 from __future__ import annotations
@@ -12,13 +14,13 @@ import json
 import sys
 from pathlib import Path
 
-from sdcnet.dataset_format import SampleStore, evenly_spread
+from sdcnet.cli import add_debug_flag, run_command
+from sdcnet.dataset_format import SampleStore
 from sdcnet.export.onnx_export import (
     MAX_DEPTH_ERROR_M,
     MIN_MASK_AGREEMENT,
-    export_onnx,
+    export_checked,
     model_metadata,
-    parity_check,
 )
 from sdcnet.export.variants import to_fp16, to_int8
 from sdcnet.training.checkpoint import load_checkpoint
@@ -39,7 +41,7 @@ def weights_digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sdc-export", description=__doc__)
     p.add_argument("--checkpoint", required=True, type=Path)
     p.add_argument("--out", required=True, type=Path, help="ONNX file to write")
@@ -61,47 +63,50 @@ def main(argv: list[str] | None = None) -> int:
         type=Path,
         help="dataset whose train split calibrates INT8 (default: 32 rendered frames)",
     )
-    args = p.parse_args(argv)
-    try:
-        model, state = load_checkpoint(args.checkpoint)
-        metrics = {}
-        if args.metrics:
-            report = json.loads(args.metrics.read_text())
-            metrics = {
-                "split": report["split"],
-                "images": report["images"],
-                **next(iter(report["results"].values())),
-            }
-        variant = state.get("train_config", {}).get("variant", "model")
-        version = f"sdcnet-{variant}-{weights_digest(args.checkpoint)}"
-        extra = {
-            "checkpoint_sha256_12": weights_digest(args.checkpoint),
-            "train_command": state.get("train_config", {}).get("command", ""),
-            "dataset_command": state.get("dataset", {}).get("command", ""),
+    add_debug_flag(p)
+    return p
+
+
+def export(args: argparse.Namespace) -> int:
+    """The export, its parity check and the variants; 1 when the check fails."""
+    model, state = load_checkpoint(args.checkpoint)
+    metrics = {}
+    if args.metrics:
+        report = json.loads(args.metrics.read_text())
+        metrics = {
+            "split": report["split"],
+            "images": report["images"],
+            **next(iter(report["results"].values())),
         }
-        export_onnx(model, args.out, model_metadata(model, version, metrics, extra))
-        print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.2f} MB), version {version}")
-        cases = parity_check(model, args.out, parity_frames(args.parity_seed))
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"sdc-export: error: {exc}", file=sys.stderr)
-        return 2
+    variant = state.get("train_config", {}).get("variant", "model")
+    version = f"sdcnet-{variant}-{weights_digest(args.checkpoint)}"
+    extra = {
+        "checkpoint_sha256_12": weights_digest(args.checkpoint),
+        "train_command": state.get("train_config", {}).get("command", ""),
+        "dataset_command": state.get("dataset", {}).get("command", ""),
+    }
+    metadata = model_metadata(model, version, metrics, extra)
+    cases = export_checked(model, args.out, metadata, parity_frames(args.parity_seed))
     print(
-        f"parity, onnxruntime CPU vs PyTorch (bounds: depth <= {MAX_DEPTH_ERROR_M * 1000:.1f} mm "
-        f"on the foreground, mask agreement >= {100 * MIN_MASK_AGREEMENT:.2f} %):"
+        f"{version}: parity, onnxruntime CPU vs PyTorch (bounds: depth <= "
+        f"{MAX_DEPTH_ERROR_M * 1000:.1f} mm on the foreground, mask agreement >= "
+        f"{100 * MIN_MASK_AGREEMENT:.2f} %):"
     )
     for c in cases:
         print(
             f"  {c.size:4d} px, batch {c.batch}: max |depth diff| "
-            f"{c.max_depth_error_m * 1000:.4f} mm over {c.foreground_px} foreground px, "
+            f"{c.max_depth_error_m * 1000:.4f} mm over {c.compared_px} foreground px, "
             f"mask agreement {100 * c.mask_agreement:.4f} %  "
             f"{'ok' if c.passed else 'FAILED'}"
         )
     if not all(c.passed for c in cases):
         print(
-            "sdc-export: parity check FAILED: the ONNX model does not reproduce PyTorch",
+            f"sdc-export: parity check FAILED: the ONNX model does not reproduce PyTorch; "
+            f"{args.out} left as it was",
             file=sys.stderr,
         )
         return 1
+    print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.2f} MB)")
     for name in args.variants:
         target = args.out.with_suffix(f".{name}.onnx")
         if name == "fp16":
@@ -114,13 +119,17 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    return run_command("sdc-export", lambda: export(args), {OSError: 2, ValueError: 2}, args.debug)
+
+
 def calibration_frames(data: Path | None, count: int = 32) -> list:
     """INT8 calibration frames: spread over a dataset's train split, or rendered (seeded)."""
     if data is None:
         return parity_frames(seed=4096, count=count)
     store = SampleStore(data)
-    records = store.split("train")
-    return [(s.gray, s.sparse) for s in map(store.load, evenly_spread(records, count))]
+    return [(s.gray, s.sparse) for s in map(store.load, store.split("train", count))]
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ foreground or the foreground decisions agree on fewer than 99.99 % of pixels.
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,8 +17,7 @@ import numpy as np
 import onnx
 import torch
 
-from sdcnet import __version__
-from sdcnet.camera import PAPER_CAMERA
+from sdcnet import __version__, runtime
 from sdcnet.runtime import INPUTS, OUTPUTS, OnnxModel
 from sdcnet.training.model.sdcnet import SDCNet
 
@@ -29,31 +29,15 @@ MIN_MASK_AGREEMENT = 0.9999
 def model_metadata(
     model: SDCNet, version: str, metrics: dict | None = None, extra: dict | None = None
 ) -> dict:
-    """The metadata_props written into the file: all the service needs besides the graph."""
-    meta = {
-        "sdcnet_version": __version__,
-        "model_version": version,
-        "intrinsics": json.dumps(PAPER_CAMERA.intrinsics().as_dict()),
-        "training_size": str(PAPER_CAMERA.width),
-        "stride": str(model.config.stride),
-        "factor": str(model.config.factor),
-        "model_config": json.dumps(model.config.to_dict()),
-        "metrics": json.dumps(metrics or {}),
-        "inputs": json.dumps(
-            {
-                "gray": "float32 (B, 1, H, W) in [0, 1]: 8-bit / 255 or 16-bit / 65535",
-                "sparse": "float32 (B, 1, H, W) LIDAR camera-frame Z in metres, 0 = no return",
-            }
-        ),
-        "outputs": json.dumps(
-            {
-                "depth": "float32 (B, 1, H, W) camera-frame Z, metres (valid on the foreground)",
-                "foreground": "float32 (B, 1, H, W) probability that a pixel is spacecraft",
-            }
-        ),
-    }
-    meta.update(extra or {})
-    return meta
+    """The metadata_props written into the file: all the service needs besides the graph,
+    and the architecture (``model_config``) it was exported from."""
+    return runtime.model_metadata(
+        version,
+        model.config.stride,
+        model.config.factor,
+        metrics,
+        {"model_config": json.dumps(model.config.to_dict()), **(extra or {})},
+    )
 
 
 def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Path:
@@ -89,11 +73,14 @@ def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Pa
 
 @dataclass
 class ParityCase:
+    """One comparison: ``size`` x ``size`` crops, ``batch`` of them; depth compared on the
+    ``compared_px`` pixels that either runtime calls foreground."""
+
     size: int
     batch: int
     max_depth_error_m: float
     mask_agreement: float
-    foreground_px: int
+    compared_px: int
 
     @property
     def passed(self) -> bool:
@@ -137,10 +124,30 @@ def parity_check(
                     batch,
                     float(error.max()) if error.size else 0.0,
                     float(np.mean((prob > 0.5) == foreground)),
-                    int(foreground.sum()),
+                    int(error.size),
                 )
             )
     return cases
+
+
+def export_checked(
+    model: SDCNet,
+    out: Path,
+    metadata: dict[str, str],
+    frames: list[tuple[np.ndarray, np.ndarray]],
+) -> list[ParityCase]:
+    """Export ``model`` to a temporary file beside ``out``, check its parity on ``frames``, and
+    only when every case passes move it to ``out`` (one rename): ``out`` never holds a graph
+    that failed, and a failed or interrupted export leaves it as it was."""
+    staged = out.with_name(f".{out.name}.unchecked")
+    try:
+        export_onnx(model, staged, metadata)
+        cases = parity_check(model, staged, frames)
+        if all(c.passed for c in cases):
+            os.replace(staged, out)
+        return cases
+    finally:
+        staged.unlink(missing_ok=True)
 
 
 def _centre(image: np.ndarray, size: int) -> np.ndarray:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,6 +61,21 @@ def write_sample(path: Path, sample: Sample) -> None:
         meta = json.dumps(sample.meta, sort_keys=True).encode()
         zf.writestr(zipfile.ZipInfo("meta.json", _ZIP_EPOCH), meta, zipfile.ZIP_DEFLATED)
     os.replace(tmp, path)
+
+
+def write_manifest(root: Path, metas: list[dict]) -> None:
+    """``root/manifest.jsonl``: one line per sample's metadata, in the order given (by id)."""
+    lines = [json.dumps(meta, sort_keys=True) for meta in metas]
+    write_atomically(Path(root) / "manifest.jsonl", "\n".join(lines) + "\n")
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path``, then rename it: shards on other
+    machines that share the folder (``deploy/dataset-job.yaml``) read the old file or the new
+    one, never half of one."""
+    with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False) as f:
+        f.write(text)
+    os.replace(f.name, path)
 
 
 def read_sample(path: Path) -> Sample:
@@ -110,9 +126,11 @@ class SampleStore:
     def __len__(self) -> int:
         return len(self.records)
 
-    def split(self, name: str) -> list[dict]:
-        """Manifest records of one split ('train', 'val', 'test', or any custom split name)."""
-        return [r for r in self.records if r["split"] == name]
+    def split(self, name: str, limit: int | None = None) -> list[dict]:
+        """Manifest records of one split ('train', 'val', 'test', or any custom split name);
+        at most ``limit`` of them, evenly spread (``evenly_spread``), when given."""
+        records = [r for r in self.records if r["split"] == name]
+        return evenly_spread(records, limit) if limit else records
 
     def load(self, record: dict) -> Sample:
         return read_sample(self.root / record["file"])

@@ -13,15 +13,50 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from sdcnet.camera import Intrinsics
+from sdcnet import __version__
+from sdcnet.camera import PAPER_CAMERA, Intrinsics
 
 INPUTS = ("gray", "sparse")
 OUTPUTS = ("depth", "foreground")
+#: What each tensor holds, in the file's metadata (``/model`` shows it).
+TENSORS = {
+    "gray": "float32 (B, 1, H, W) in [0, 1]: 8-bit / 255 or 16-bit / 65535",
+    "sparse": "float32 (B, 1, H, W) LIDAR camera-frame Z in metres, 0 = no return",
+    "depth": "float32 (B, 1, H, W) camera-frame Z, metres (valid on the foreground)",
+    "foreground": "float32 (B, 1, H, W) probability that a pixel is spacecraft",
+}
 PREFERRED_PROVIDERS = ("CUDAExecutionProvider", "CPUExecutionProvider")
+#: Session option: whether idle intra-op threads spin-wait for work ("1") or sleep ("0").
+SPIN_WAIT = "session.intra_op.allow_spinning"
 
 
 class ModelLoadError(RuntimeError):
     """The model file is missing, unreadable, not ONNX, or not an sdcnet model."""
+
+
+def model_metadata(
+    version: str,
+    stride: int,
+    factor: int = 1,
+    metrics: dict | None = None,
+    extra: dict[str, str] | None = None,
+) -> dict[str, str]:
+    """The metadata_props an sdcnet ONNX file carries: what ``OnnxModel`` reads (version, the
+    paper camera's intrinsics at its training size, the crop ``stride`` in pixels, the
+    ``factor`` of its internal resolution) and what ``/model`` shows (metrics, tensors)."""
+    meta = {
+        "sdcnet_version": __version__,
+        "model_version": version,
+        "intrinsics": json.dumps(PAPER_CAMERA.intrinsics().as_dict()),
+        "training_size": str(PAPER_CAMERA.width),
+        "stride": str(stride),
+        "factor": str(factor),
+        "metrics": json.dumps(metrics or {}),
+        "inputs": json.dumps({name: TENSORS[name] for name in INPUTS}),
+        "outputs": json.dumps({name: TENSORS[name] for name in OUTPUTS}),
+    }
+    meta.update(extra or {})
+    return meta
 
 
 def choose_providers(requested: str | None = None) -> list[str]:
@@ -83,7 +118,15 @@ def _info(session: ort.InferenceSession, path: Path) -> ModelInfo:
 class OnnxModel:
     """An sdcnet ONNX model loaded once; ``run`` is the pipeline's model callable."""
 
-    def __init__(self, path: str | Path, provider: str | None = None, threads: int | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        provider: str | None = None,
+        threads: int | None = None,
+        spin_wait: bool = True,
+    ):
+        """``spin_wait``: onnxruntime's idle intra-op threads spin (its default) rather than
+        sleep; the service turns it off (``sdcnet.service.settings.Settings.spin_wait``)."""
         path = Path(path)
         if not path.is_file():
             raise ModelLoadError(f"model file not found: {path}")
@@ -91,6 +134,7 @@ class OnnxModel:
         options.intra_op_num_threads = threads or len(os.sched_getaffinity(0))
         options.inter_op_num_threads = 1
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        options.add_session_config_entry(SPIN_WAIT, "1" if spin_wait else "0")
         try:
             self.session = ort.InferenceSession(
                 str(path), options, providers=choose_providers(provider)

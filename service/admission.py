@@ -6,10 +6,11 @@ A pure ASGI middleware, so that it can answer before the body is read:
   when declared, else as soon as the streamed bytes pass the limit; a body that stalls for
   ``body_timeout_s`` between two chunks (a client that sent less than its Content-Length and
   waits, or a slow-loris) gets 408, so that it cannot hold an in-flight place for ever;
-- ``POST /complete`` and ``POST /pose``: at most ``max_in_flight`` at once, together, the next
-  ones get 503 with Retry-After at once (no unbounded queue; Triton and Ray Serve do the same);
-  the pending gauge, the success / failure counters and the request latency are kept here,
-  where every outcome passes, the early refusals included. Probes and metrics are never limited.
+- inference (``POST /complete``, ``POST /v2/models/sdcnet/infer``, ``POST /pose``): at most
+  ``max_in_flight`` at once between them, the next ones get 503 with
+  Retry-After at once (no unbounded queue; Triton and Ray Serve do the same); the pending gauge,
+  the success / failure counters and the request latency are kept here, where every outcome
+  passes, the early refusals included. Probes and metrics are never limited.
 """
 
 from __future__ import annotations
@@ -19,10 +20,11 @@ import time
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from sdcnet.service.errors import ApiError, error_response
+from sdcnet.service.deps import MODEL_NAME
+from sdcnet.service.errors import ApiError, error_response, is_v2, route_path
 from sdcnet.service.metrics import ServiceMetrics
 
-INFERENCE_PATHS = frozenset({"/complete", "/pose"})
+INFERENCE_PATHS = ("/complete", f"/v2/models/{MODEL_NAME}/infer", "/pose")
 
 
 class Admission:
@@ -73,8 +75,7 @@ class Admission:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        path = scope["path"].removeprefix(scope.get("root_path", ""))
-        inference = scope["method"] == "POST" and path in INFERENCE_PATHS
+        inference = scope["method"] == "POST" and route_path(scope) in INFERENCE_PATHS
         declared = dict(scope["headers"]).get(b"content-length")
         if declared is not None and int(declared) > self.max_upload_bytes:
             await self._refuse(self._too_large(), inference, scope, receive, send)
@@ -91,7 +92,9 @@ class Admission:
         """Answer ``error`` without reading the body (uvicorn discards what is left of it)."""
         if counted:
             self.metrics.failure.labels(error.code).inc()
-        response = error_response(error.status_code, error.code, error.message, error.headers)
+        response = error_response(
+            error.status_code, error.code, error.message, error.headers, v2=is_v2(scope)
+        )
         await response(scope, receive, send)
 
     def _limited(self, receive: Receive) -> Receive:

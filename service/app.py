@@ -23,7 +23,7 @@ from sdcnet.service.errors import install_error_handlers
 from sdcnet.service.inference import Engine, self_test
 from sdcnet.service.metrics import ServiceMetrics
 from sdcnet.service.pose import configured_targets
-from sdcnet.service.routes import ROUTERS
+from sdcnet.service.routes import ROUTERS, v2_infer
 from sdcnet.service.settings import Settings
 from sdcnet.targets import Target
 
@@ -49,7 +49,9 @@ def load_model(settings: Settings) -> OnnxModel:
     if settings.model_path.is_dir():
         raise ModelLoadError(f"{settings.model_path} is a directory, not an ONNX model file")
     try:
-        model = OnnxModel(settings.model_path, settings.provider, settings.threads)
+        model = OnnxModel(
+            settings.model_path, settings.provider, settings.threads, settings.spin_wait
+        )
     except (ValueError, TypeError, KeyError) as exc:  # sdcnet metadata that does not parse
         raise ModelLoadError(
             f"{settings.model_path} is not a usable sdcnet model: its metadata does not parse "
@@ -59,15 +61,17 @@ def load_model(settings: Settings) -> OnnxModel:
     return model
 
 
-def close_form_schemas(app: FastAPI) -> None:
-    """Make the OpenAPI schema of every multipart body say ``additionalProperties: false``, as
-    ``strict_form`` enforces (FastAPI leaves them open), so that clients and fuzzers generated
-    from the schema know an unknown field is refused."""
+def complete_openapi(app: FastAPI) -> None:
+    """Two things FastAPI's OpenAPI document lacks: the schema of every multipart body says
+    ``additionalProperties: false``, as ``strict_form`` enforces (FastAPI leaves them open), so
+    that clients and fuzzers generated from the schema know an unknown field is refused; and
+    the components of the v2 inference request, whose body the route parses itself."""
     generate = app.openapi
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
             schema = generate()  # FastAPI keeps it in app.openapi_schema
+            schema["components"]["schemas"].update(v2_infer.OPENAPI_SCHEMAS)
             for operations in schema["paths"].values():
                 for operation in operations.values():
                     body = operation.get("requestBody", {}).get("content", {})
@@ -136,5 +140,5 @@ def create_app(
     )
     for router in ROUTERS:
         app.include_router(router)
-    close_form_schemas(app)
+    complete_openapi(app)
     return app

@@ -16,6 +16,7 @@ from pathlib import Path
 import uvicorn
 from pydantic import ValidationError
 
+from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.runtime import ModelLoadError
 from sdcnet.service.app import create_app, load_model
 from sdcnet.service.pose import configured_targets
@@ -51,6 +52,7 @@ FLAGS = [
     ("--provider", "provider", str),
     ("--threads", "threads", int),
     ("--targets", "targets", Path),
+    ("--spin-wait", "spin_wait", str),  # true / false, parsed by the settings
     ("--host", "host", str),
     ("--port", "port", int),
     ("--max-in-flight", "max_in_flight", int),
@@ -78,6 +80,7 @@ def parser() -> argparse.ArgumentParser:
     )
     for flag, setting, kind in FLAGS:
         p.add_argument(flag, dest=setting, type=kind, help=_help(setting))
+    add_debug_flag(p)
     return p
 
 
@@ -94,9 +97,15 @@ def invalid_settings(exc: ValidationError) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    return run_command("sdc-serve", lambda: serve(args), {}, args.debug)
+
+
+def serve(args: argparse.Namespace) -> int:
+    """Load the model, then serve until stopped; 2 with one line for a bad setting or model."""
     limit_malloc_arenas()
+    given = {setting: getattr(args, setting) for _, setting, _ in FLAGS}
     try:
-        settings = Settings(**{k: v for k, v in vars(args).items() if v is not None})
+        settings = Settings(**{k: v for k, v in given.items() if v is not None})
     except ValidationError as exc:
         print(f"sdc-serve: invalid setting: {invalid_settings(exc)}", file=sys.stderr)
         return 2

@@ -1,19 +1,25 @@
-"""Uploaded bytes to validated arrays: the gray image and the sparse LIDAR depth map.
+"""Uploaded bytes to a validated ``Frame``: the gray image and the LIDAR returns, as a dense
+sparse map or as a list.
 
 Every check answers with an ``ApiError`` (a 4xx and a stable code) and nothing here can crash
 on hostile bytes: sizes are read from headers and checked before anything is decoded, images
 are decoded by OpenCV (``cv2.imdecode``, IMREAD_UNCHANGED) only for the four formats accepted,
 and ``.npy`` files are loaded with ``allow_pickle=False`` after their header says they hold
-plain floats.
+plain floats. The checks on arrays (``frame_of``) are the ones the Open Inference Protocol's
+tensors go through too (``sdcnet.service.v2``).
 """
 
 from __future__ import annotations
 
 import io
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from sdcnet.pipeline import to_gray
+from sdcnet.returns import ReturnsError, dense_from_returns, parse_returns_csv
 from sdcnet.service.errors import ApiError
 from sdcnet.service.image_header import (
     PNG_SIGNATURE,
@@ -23,9 +29,87 @@ from sdcnet.service.image_header import (
     check_decoding_work,
     read_header,
 )
+from sdcnet.service.schemas import ResponseFormat
 
 NPY_MAGIC = b"\x93NUMPY"
 _GRAY_DTYPES = (np.uint8, np.uint16)
+
+
+@dataclass(frozen=True)
+class CompletionRequest:
+    """The fields of one ``POST /complete``: file bytes (``sparse`` or ``returns``, one of
+    the two), intrinsics in pixels (``None`` = the model's, scaled), the answer's format."""
+
+    gray: bytes
+    sparse: bytes | None = None
+    returns: bytes | None = None
+    depth_scale: float | None = None
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    outlier_removal: bool = False
+    format: ResponseFormat = ResponseFormat.json
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One request's validated inputs, whatever protocol brought them: gray uint8/uint16
+    (H, W); sparse float32 (H, W) metres, 0 = no return, at least one return; intrinsics in
+    pixels, ``None`` = the model's, scaled to the image."""
+
+    gray: np.ndarray
+    sparse: np.ndarray
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    outlier_removal: bool = False
+
+
+def decode_form(req: CompletionRequest, max_pixels: int) -> Frame:
+    """The frame of a ``POST /complete`` form: image bytes, and a sparse map or returns."""
+    if (req.sparse is None) == (req.returns is None):
+        given = "both" if req.sparse is not None else "neither"
+        raise ApiError(
+            422,
+            "invalid_request",
+            f"send the LIDAR returns once: the form field sparse (dense map) or returns "
+            f"(list), not {given}",
+        )
+    if req.returns is not None and req.depth_scale is not None:
+        raise ApiError(
+            422,
+            "invalid_request",
+            "depth_scale applies to 16-bit PNG sparse maps only; returns hold metres",
+        )
+    gray = decode_gray(req.gray, max_pixels)
+    if req.sparse is not None:
+        sparse = decode_sparse(req.sparse, req.depth_scale, max_pixels)
+        check_same_size(gray, sparse)
+    else:
+        sparse = sparse_from_returns(decode_returns(req.returns, max_pixels), gray.shape)
+    return Frame(gray, sparse, req.fx, req.fy, req.cx, req.cy, req.outlier_removal)
+
+
+def frame_of(
+    gray: np.ndarray,
+    sparse: np.ndarray | None,
+    returns: np.ndarray | None,
+    max_pixels: int,
+    **options,
+) -> Frame:
+    """The frame of arrays already in memory (Open Inference Protocol tensors): gray uint8 or
+    uint16 (H, W), and a float32 sparse map (H, W) or float32 returns (N, 3), checked as the
+    form's files are; ``options`` are ``Frame``'s intrinsics and ``outlier_removal``."""
+    height, width = gray.shape
+    _too_large("gray", width, height, max_pixels)
+    if sparse is not None:
+        check_same_size(gray, sparse)
+        check_depths(sparse)
+    else:
+        sparse = sparse_from_returns(returns, gray.shape)
+    return Frame(gray, sparse, **options)
 
 
 def _too_large(field: str, width: int, height: int, max_pixels: int) -> None:
@@ -82,10 +166,7 @@ def decode_gray(data: bytes, max_pixels: int) -> np.ndarray:
         raise ApiError(
             422, "wrong_dtype", f"gray must be an 8- or 16-bit image, got {image.dtype} pixels"
         )
-    if image.ndim == 3:
-        conversion = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}.get(image.shape[2])
-        image = cv2.cvtColor(image, conversion) if conversion is not None else image[..., 0]
-    return np.ascontiguousarray(image)
+    return to_gray(image)
 
 
 def decode_sparse(data: bytes, depth_scale: float | None, max_pixels: int) -> np.ndarray:
@@ -115,11 +196,13 @@ def decode_sparse(data: bytes, depth_scale: float | None, max_pixels: int) -> np
             "sparse must be a .npy file (float32 or float64 metres) or a 16-bit PNG with "
             "depth_scale",
         )
-    _check_depths(sparse)
+    check_depths(sparse)
     return sparse
 
 
-def _npy(data: bytes, max_pixels: int) -> np.ndarray:
+def _npy_floats(field: str, data: bytes, check_shape: Callable[[tuple], None]) -> np.ndarray:
+    """float32 array of ``.npy`` bytes of float32/float64 values, never unpickled;
+    ``check_shape(shape)`` runs on the header's shape before the data is read."""
     stream = io.BytesIO(data)
     try:
         major, _ = np.lib.format.read_magic(stream)
@@ -130,30 +213,83 @@ def _npy(data: bytes, max_pixels: int) -> np.ndarray:
         )
         shape, _, dtype = read(stream)
     except Exception as exc:  # numpy parses the header dict with tokenize/ast: any error type
-        raise ApiError(400, "unreadable_file", f"sparse: not a valid .npy header ({exc})") from exc
+        raise ApiError(400, "unreadable_file", f"{field}: not a valid .npy header ({exc})") from exc
     if dtype.hasobject:
         raise ApiError(
             400,
             "pickle_not_allowed",
-            "sparse .npy holds Python objects, which would need unpickling; this service never "
-            "unpickles: send float32 or float64 metres",
+            f"{field} .npy holds Python objects, which would need unpickling; this service "
+            "never unpickles: send float32 or float64 metres",
         )
     if dtype.kind != "f" or dtype.itemsize not in (4, 8):
         raise ApiError(
-            422, "wrong_dtype", f"sparse .npy must hold float32 or float64 metres, got {dtype}"
+            422, "wrong_dtype", f"{field} .npy must hold float32 or float64 metres, got {dtype}"
         )
-    if len(shape) != 2:
-        raise ApiError(
-            422, "wrong_shape", f"sparse .npy must be 2-D (height, width), got shape {shape}"
-        )
-    _too_large("sparse", shape[1], shape[0], max_pixels)
+    check_shape(shape)
     try:
         array = np.load(io.BytesIO(data), allow_pickle=False)
     except (ValueError, EOFError, OSError) as exc:
         raise ApiError(
-            400, "unreadable_file", f"sparse: cannot read the .npy data (truncated?): {exc}"
+            400, "unreadable_file", f"{field}: cannot read the .npy data (truncated?): {exc}"
         ) from exc
     return array.astype(np.float32)
+
+
+def _npy(data: bytes, max_pixels: int) -> np.ndarray:
+    def dense_map(shape: tuple) -> None:
+        if len(shape) != 2:
+            raise ApiError(
+                422, "wrong_shape", f"sparse .npy must be 2-D (height, width), got shape {shape}"
+            )
+        _too_large("sparse", shape[1], shape[0], max_pixels)
+
+    return _npy_floats("sparse", data, dense_map)
+
+
+def decode_returns(data: bytes, max_pixels: int) -> np.ndarray:
+    """``.npy`` (N, 3) float32/float64 or CSV text (header ``row,col,z_m``) bytes -> the
+    returns as float32 (N, 3): row, column (pixel indices), Z metres; at most ``max_pixels``
+    of them. Checked against the frame by ``sparse_from_returns``."""
+    _not_empty("returns", data)
+    if data.startswith(NPY_MAGIC):
+
+        def return_list(shape: tuple) -> None:
+            if len(shape) != 2 or shape[1] != 3:
+                raise ApiError(
+                    422,
+                    "wrong_shape",
+                    f"returns .npy must be (N, 3): row, col, z_m; got shape {shape}",
+                )
+            if shape[0] > max_pixels:
+                raise ApiError(
+                    413, "too_large", f"{shape[0]} returns, above this service's {max_pixels}"
+                )
+
+        return _npy_floats("returns", data, return_list)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ApiError(
+            415,
+            "unsupported_media_type",
+            "returns must be a .npy file of (N, 3) float32/float64 or a CSV text file with the "
+            "header row,col,z_m",
+        ) from None
+    if text.count("\n") > max_pixels + 1:
+        raise ApiError(413, "too_large", f"more than {max_pixels} returns in the CSV")
+    try:
+        return parse_returns_csv(text, "returns")
+    except ReturnsError as exc:
+        raise ApiError(422, exc.code, str(exc)) from None
+
+
+def sparse_from_returns(returns: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The dense float32 map of checked ``returns`` in a frame of ``shape`` (the nearest
+    return wins a pixel); 422 with the problem's code for returns that cannot be."""
+    try:
+        return dense_from_returns(returns, shape)
+    except ReturnsError as exc:
+        raise ApiError(422, exc.code, str(exc)) from None
 
 
 def _png_depth(data: bytes, depth_scale: float, max_pixels: int) -> np.ndarray:
@@ -169,7 +305,8 @@ def _png_depth(data: bytes, depth_scale: float, max_pixels: int) -> np.ndarray:
     return image.astype(np.float32) * np.float32(depth_scale)
 
 
-def _check_depths(sparse: np.ndarray) -> None:
+def check_depths(sparse: np.ndarray) -> None:
+    """A dense map's depths: finite, >= 0, at least one return."""
     if not np.isfinite(sparse).all():
         bad = int(np.count_nonzero(~np.isfinite(sparse)))
         raise ApiError(422, "invalid_depth", f"sparse has {bad} NaN or infinite values")

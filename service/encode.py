@@ -58,11 +58,16 @@ class _Json:
 
 
 class _Npz:
+    """The zip is written as the arrays stream into it (``numpy.lib.format.write_array``
+    straight into each member): no ``.npy`` copy of a 4 MiB depth map is made first."""
+
     def __init__(self, arrays: dict[str, np.ndarray]):
         self.buffer = io.BytesIO()
         self.zip = zipfile.ZipFile(self.buffer, "w", zipfile.ZIP_STORED)
         for name, array in arrays.items():
-            self.zip.writestr(zipfile.ZipInfo(f"{name}.npy", _ZIP_EPOCH), npy_bytes(array))
+            member = zipfile.ZipInfo(f"{name}.npy", _ZIP_EPOCH)
+            with self.zip.open(member, "w", force_zip64=array.nbytes > 2**31) as out:
+                np.lib.format.write_array(out, np.ascontiguousarray(array), allow_pickle=False)
 
     def finish(self, summary: CompletionSummary) -> bytes:
         self.zip.writestr(zipfile.ZipInfo("meta.json", _ZIP_EPOCH), summary.model_dump_json())

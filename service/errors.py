@@ -1,9 +1,11 @@
-"""One JSON error shape for every failure: ``{"error": {"code", "message", "details"?}}``.
+"""One JSON error shape for every failure: ``{"error": {"code", "message", "details"?}}``;
+under ``/v2/`` the Open Inference Protocol's: ``{"error": "message"}``.
 
 ``ApiError`` is raised by our code with a stable ``code``; FastAPI's own validation errors,
 Starlette's 404/405 and anything unexpected are turned into the same shape. Each handler
 records the code in the request state, where the admission middleware reads it for the
-failure counter.
+failure counter. On the v2 routes the code travels in the ``Sdcnet-Error-Code`` header, since
+the protocol's body has room for a message only (tritonclient reads ``error`` alone).
 """
 
 from __future__ import annotations
@@ -15,7 +17,12 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
-from sdcnet.service.schemas import ErrorBody, ErrorDetail, ErrorInfo
+from sdcnet.service.schemas import ErrorBody, ErrorDetail, ErrorInfo, V2ErrorBody
+
+#: Paths under this prefix are the Open Inference Protocol's: its error shape.
+V2_PREFIX = "/v2/"
+#: The stable error code of a v2 error answer.
+CODE_HEADER = "Sdcnet-Error-Code"
 
 #: Codes for HTTP errors raised by the framework rather than by us.
 _STATUS_CODES = {
@@ -55,15 +62,30 @@ def error_response(
     message: str,
     headers: Mapping[str, str] | None = None,
     details: list[ErrorDetail] | None = None,
+    v2: bool = False,
 ) -> JSONResponse:
-    """The JSON answer for an error."""
+    """The JSON answer for an error; ``v2``: the Open Inference Protocol's shape."""
+    if v2:
+        headers = {**(headers or {}), CODE_HEADER: code}
+        return JSONResponse(V2ErrorBody(error=message).model_dump(), status, headers=headers)
     body = ErrorBody(error=ErrorInfo(code=code, message=message, details=details))
     return JSONResponse(body.model_dump(exclude_none=True), status, headers=headers)
 
 
+def route_path(scope: Mapping) -> str:
+    """The request's path within the application (its root path left out)."""
+    return scope["path"].removeprefix(scope.get("root_path", ""))
+
+
+def is_v2(scope: Mapping) -> bool:
+    """Whether the request is for an Open Inference Protocol route, whose errors take that
+    protocol's shape."""
+    return route_path(scope).startswith(V2_PREFIX)
+
+
 def _answer(request: Request, status: int, code: str, message: str, **kwargs) -> JSONResponse:
     request.state.error_code = code
-    return error_response(status, code, message, **kwargs)
+    return error_response(status, code, message, v2=is_v2(request.scope), **kwargs)
 
 
 async def _api_error(request: Request, exc: Exception) -> JSONResponse:
@@ -135,3 +157,21 @@ ERROR_RESPONSES: dict[int | str, dict] = {
     }.items()
 }
 ERROR_RESPONSES[503]["headers"] = RETRY_AFTER_HEADER
+
+_CODE_HEADER_DOC = {
+    CODE_HEADER: {
+        "description": "stable, machine-readable reason, e.g. 'no_returns'",
+        "required": True,
+        "schema": {"type": "string"},
+    }
+}
+
+#: For the v2 routes' declarations: the same answers in the protocol's shape.
+V2_ERROR_RESPONSES: dict[int | str, dict] = {
+    status: {
+        "model": V2ErrorBody,
+        "description": response["description"],
+        "headers": {**response.get("headers", {}), **_CODE_HEADER_DOC},
+    }
+    for status, response in ERROR_RESPONSES.items()
+}

@@ -1,30 +1,45 @@
-"""One ``POST /complete`` from uploaded bytes to answer bytes, run in a worker thread.
+"""One request from its validated inputs to the arrays every protocol answers, run in a
+worker thread; and ``POST /complete`` from uploaded bytes to answer bytes.
 
-decode (bytes -> validated arrays) -> queue (wait for the model) -> inference
-(``sdcnet.pipeline.complete``: crop to the LIDAR-bounded region, model, paste back) ->
-encode (point cloud, optional outlier removal, serialisation). Each phase is timed.
+decode (bytes -> validated ``Frame``: ``sdcnet.service.decode`` for the multipart form,
+``sdcnet.service.v2`` for the Open Inference Protocol) -> queue (wait for the model) ->
+inference (``sdcnet.pipeline.complete``: crop to the LIDAR-bounded region, model, paste back)
+-> encode (point cloud, optional outlier removal, then the protocol's serialisation). Each
+phase is timed. ``complete_frame`` is the one path both protocols share.
 """
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from sdcnet.camera import Intrinsics
-from sdcnet.pipeline import Completion, complete
+from sdcnet.compact import mask_window
+from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
 from sdcnet.runtime import ModelLoadError, OnnxModel
-from sdcnet.service.decode import check_same_size, decode_gray, decode_sparse
+from sdcnet.service.decode import CompletionRequest, Frame, decode_form
 from sdcnet.service.encode import encode
-from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, ResponseFormat, Timings
+from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, FrameSummary, Timings
 
 PHASES = ("decode", "queue", "inference", "encode")
 SELF_TEST_SIZE = 64  # pixels, side of the frame the model completes once at start-up
+
+
+#: The ``Server-Timing`` header of an inference answer, for the routes' OpenAPI declarations.
+SERVER_TIMING_HEADER = {
+    "Server-Timing": {
+        "description": "milliseconds per phase: decode, queue, inference, encode",
+        "required": True,
+        "schema": {"type": "string"},
+    }
+}
 
 
 class PhaseTimer:
@@ -41,8 +56,12 @@ class PhaseTimer:
         finally:
             self.seconds[phase] = self.seconds.get(phase, 0.0) + time.perf_counter() - start
 
+    def milliseconds(self, phases: tuple[str, ...] = PHASES) -> dict[str, float]:
+        """{"PHASE_ms": milliseconds} of ``phases``, to the microsecond."""
+        return {f"{p}_ms": round(self.seconds.get(p, 0.0) * 1e3, 3) for p in phases}
+
     def timings(self) -> Timings:
-        return Timings(**{f"{p}_ms": round(self.seconds.get(p, 0.0) * 1e3, 3) for p in PHASES})
+        return Timings(**self.milliseconds())
 
     def server_timing(self, phases: tuple[str, ...] = PHASES) -> str:
         """The ``Server-Timing`` header (milliseconds), shown by browsers' developer tools."""
@@ -91,37 +110,54 @@ def self_test(model: OnnxModel) -> None:
         raise ModelLoadError(f"{model.path} answers {result.depth.dtype} depth, not float32")
 
 
-@dataclass(frozen=True)
-class CompletionRequest:
-    """The fields of one request; intrinsics in pixels, ``None`` = the model's, scaled."""
+@dataclass
+class Completed:
+    """One completed frame, before any protocol serialises it: depth float32 (H, W) metres,
+    mask bool (H, W), points float32 (N, 3) metres, the region the network saw (everything
+    outside it is 0), the intrinsics used and the summary's counts."""
 
-    gray: bytes
-    sparse: bytes
-    depth_scale: float | None = None
-    fx: float | None = None
-    fy: float | None = None
-    cx: float | None = None
-    cy: float | None = None
-    outlier_removal: bool = False
-    format: ResponseFormat = ResponseFormat.json
+    depth: np.ndarray
+    mask: np.ndarray
+    points: np.ndarray
+    region: Region
+    intrinsics: Intrinsics
+    returns: int
+    outliers_removed: int
+
+    @functools.cached_property
+    def window(self) -> tuple[int, int, int, int]:
+        """(y0, x0, height, width): the smallest window holding the mask, outside which depth
+        and mask are 0 (``sdcnet.compact.mask_window``, searched within the region)."""
+        return mask_window(self.mask[self.region.slices], self.region.y0, self.region.x0)
+
+    def frame_summary(self, model: OnnxModel) -> FrameSummary:
+        """The frame's summary without timings (``POST /pose``'s ``completion``)."""
+        K = self.intrinsics
+        return FrameSummary(
+            model_version=model.info.version,
+            provider=model.provider,
+            width=K.width,
+            height=K.height,
+            intrinsics=CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
+            returns=self.returns,
+            foreground_px=int(np.count_nonzero(self.mask)),
+            point_count=len(self.points),
+            outliers_removed=self.outliers_removed,
+        )
+
+    def summary(self, model: OnnxModel, timer: PhaseTimer) -> CompletionSummary:
+        """The completion protocols' summary: the frame's, and the timings."""
+        return CompletionSummary(**dict(self.frame_summary(model)), timings=timer.timings())
 
 
-@dataclass(frozen=True)
-class Answer:
-    body: bytes
-    timer: PhaseTimer
-
-
-def request_intrinsics(
-    default: Intrinsics, width: int, height: int, req: CompletionRequest
-) -> Intrinsics:
+def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Frame) -> Intrinsics:
     """The request's intrinsics; each value not given is the model's, scaled to the image."""
     base = default.scaled(width, height)
     return Intrinsics(
-        base.fx if req.fx is None else req.fx,
-        base.fy if req.fy is None else req.fy,
-        base.cx if req.cx is None else req.cx,
-        base.cy if req.cy is None else req.cy,
+        base.fx if frame.fx is None else frame.fx,
+        base.fy if frame.fy is None else frame.fy,
+        base.cx if frame.cx is None else frame.cx,
+        base.cy if frame.cy is None else frame.cy,
         width,
         height,
     )
@@ -139,67 +175,51 @@ def pixel_scale(model_fx: float, fx: float, pixels: int, max_pixels: int) -> flo
     return float(np.clip(zoom, 1 / MAX_ZOOM, min(MAX_ZOOM, (max_pixels / pixels) ** 0.5)))
 
 
-@dataclass(frozen=True)
-class CompletedFrame:
-    """One request's frame, decoded and completed: what ``POST /complete`` encodes and
-    ``POST /pose`` registers."""
-
-    sparse: np.ndarray  # (H, W) float32 metres, the request's LIDAR returns
-    result: Completion
-    intrinsics: Intrinsics
-
-
-def complete_request(
-    engine: Engine, req: CompletionRequest, max_pixels: int, timer: PhaseTimer
-) -> CompletedFrame:
-    """Decode and complete one request; raises ``ApiError`` for bad input."""
-    with timer("decode"):
-        gray = decode_gray(req.gray, max_pixels)
-        sparse = decode_sparse(req.sparse, req.depth_scale, max_pixels)
-        check_same_size(gray, sparse)
-    height, width = gray.shape
-    K = request_intrinsics(engine.model.info.intrinsics, width, height, req)
+def complete_frame(
+    engine: Engine,
+    frame: Frame,
+    max_pixels: int,
+    timer: PhaseTimer,
+    cloud_phase: str = "encode",
+) -> Completed:
+    """Complete a validated frame (queue, inference) and back-project its points (timed as
+    ``cloud_phase``, with the optional outlier removal): what every protocol answers from,
+    and what ``POST /pose`` registers."""
+    height, width = frame.gray.shape
+    K = request_intrinsics(engine.model.info.intrinsics, width, height, frame)
     zoom = pixel_scale(engine.model.info.intrinsics.fx, K.fx, width * height, max_pixels)
-    return CompletedFrame(sparse, engine.complete(gray, sparse, zoom, timer), K)
+    result = engine.complete(frame.gray, frame.sparse, zoom, timer)
+    with timer(cloud_phase):
+        valid = result.mask & (result.depth > 0)
+        kept = statistical_outliers(result.depth, valid, K) if frame.outlier_removal else valid
+        points = back_project(result.depth, kept, K)
+    return Completed(
+        depth=result.depth,
+        mask=result.mask,
+        points=points,
+        region=result.region,
+        intrinsics=K,
+        returns=int(np.count_nonzero(frame.sparse)),
+        outliers_removed=int(np.count_nonzero(valid)) - len(points),
+    )
 
 
-def completed_cloud(frame: CompletedFrame, outlier_removal: bool) -> tuple[np.ndarray, int]:
-    """(points (N, 3) camera frame, metres; how many the outlier removal dropped)."""
-    result, K = frame.result, frame.intrinsics
-    valid = result.mask & (result.depth > 0)
-    kept = statistical_outliers(result.depth, valid, K) if outlier_removal else valid
-    points = back_project(result.depth, kept, K)
-    return points, int(np.count_nonzero(valid)) - len(points)
+@dataclass(frozen=True)
+class Answer:
+    """An answer's body, its extra headers and the time each phase took."""
 
-
-def frame_summary(
-    engine: Engine, frame: CompletedFrame, point_count: int, outliers_removed: int
-) -> dict:
-    """The fields of ``FrameSummary`` for one completed frame."""
-    height, width = frame.sparse.shape
-    K = frame.intrinsics
-    return {
-        "model_version": engine.model.info.version,
-        "provider": engine.model.provider,
-        "width": width,
-        "height": height,
-        "intrinsics": CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
-        "returns": int(np.count_nonzero(frame.sparse)),
-        "foreground_px": int(np.count_nonzero(frame.result.mask)),
-        "point_count": point_count,
-        "outliers_removed": outliers_removed,
-    }
+    body: bytes
+    timer: PhaseTimer
+    headers: dict[str, str] = field(default_factory=dict)
+    media_type: str = "application/octet-stream"
 
 
 def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
-    """Decode, complete, encode one request; raises ``ApiError`` for bad input."""
+    """Decode, complete, encode one ``POST /complete``; raises ``ApiError`` for bad input."""
     timer = PhaseTimer()
-    frame = complete_request(engine, req, max_pixels, timer)
+    with timer("decode"):
+        frame = decode_form(req, max_pixels)
+    done = complete_frame(engine, frame, max_pixels, timer)
     with timer("encode"):
-        points, removed = completed_cloud(frame, req.outlier_removal)
-        mask = frame.result.mask.astype(np.uint8)
-        encoded = encode(req.format, frame.result.depth, mask, points)
-    summary = CompletionSummary(
-        **frame_summary(engine, frame, len(points), removed), timings=timer.timings()
-    )
-    return Answer(encoded.finish(summary), timer)
+        encoded = encode(req.format, done.depth, done.mask.astype(np.uint8), done.points)
+    return Answer(encoded.finish(done.summary(engine.model, timer)), timer)

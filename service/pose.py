@@ -1,9 +1,10 @@
 """One ``POST /pose``: the frame completed as ``POST /complete`` completes it, then the
 known target registered to the completed cloud (``sdcnet.registration``), in a worker thread.
 
-decode -> queue -> inference (``service.inference.complete_request``, the same code as
-``POST /complete``) -> cloud (the completed depth and the LIDAR returns back-projected) ->
-registration. The target and ``init`` are checked before any image is decoded.
+decode (``service.decode.decode_form``: the same form, sparse map or returns list, as
+``POST /complete``) -> queue -> inference -> cloud (``service.inference.complete_frame``, the
+path every protocol shares, then the LIDAR returns back-projected too) -> registration. The
+target and ``init`` are checked before any image is decoded.
 """
 
 from __future__ import annotations
@@ -18,15 +19,9 @@ import numpy as np
 from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, parse_pose
+from sdcnet.service.decode import CompletionRequest, decode_form
 from sdcnet.service.errors import ApiError
-from sdcnet.service.inference import (
-    CompletionRequest,
-    Engine,
-    PhaseTimer,
-    complete_request,
-    completed_cloud,
-    frame_summary,
-)
+from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
 from sdcnet.service.pose_schemas import PoseAlternative, PoseResponse, PoseTimings, PoseValue
 from sdcnet.service.schemas import FrameSummary
 from sdcnet.service.settings import Settings
@@ -93,7 +88,6 @@ def pose_response(
 ) -> PoseResponse:
     covariance = estimate.covariance
     finite = bool(np.all(np.isfinite(covariance)))
-    seconds = timer.seconds
     return PoseResponse(
         target=target.name,
         pose=_pose_value(estimate.pose),
@@ -120,7 +114,7 @@ def pose_response(
         hypotheses=estimate.hypotheses,
         completion=completion,
         timings=PoseTimings(
-            **{f"{p}_ms": round(seconds.get(p, 0.0) * 1e3, 3) for p in POSE_PHASES},
+            **timer.milliseconds(POSE_PHASES),
             search_ms=estimate.timings_ms.get("search_ms", 0.0),
             registration_cpu_ms=estimate.timings_ms["cpu_ms"],
         ),
@@ -137,16 +131,17 @@ def answer_pose(
     target = find_target(targets, req.target)
     init = read_init(req.init)
     timer = PhaseTimer()
-    frame = complete_request(engine, req.frame, max_pixels, timer)
+    with timer("decode"):
+        frame = decode_form(req.frame, max_pixels)
+    done = complete_frame(engine, frame, max_pixels, timer, cloud_phase="cloud")
     with timer("cloud"):
-        points, removed = completed_cloud(frame, req.frame.outlier_removal)
-        returns = back_project(frame.sparse, frame.sparse > 0, frame.intrinsics)
+        returns = back_project(frame.sparse, frame.sparse > 0, done.intrinsics)
     with timer("registration"):
         try:
-            estimate = estimate_pose(target.model, points, returns, init)
+            estimate = estimate_pose(target.model, done.points, returns, init)
         except UnusableCloudError as exc:
             raise ApiError(
                 422, exc.code, f"the completed cloud cannot be registered to {target.name}: {exc}"
             ) from exc
-    completion = FrameSummary(**frame_summary(engine, frame, len(points), removed))
+    completion = done.frame_summary(engine.model)
     return pose_response(target, estimate, completion, timer), timer

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field
 
-from sdcnet.service.schemas import FrameSummary
+from sdcnet.service.schemas import FrameSummary, FrameTimings
 
 
 class PoseValue(BaseModel):
@@ -26,12 +26,9 @@ class PoseAlternative(BaseModel):
     )
 
 
-class PoseTimings(BaseModel):
-    """Server-side time per phase, milliseconds."""
+class PoseTimings(FrameTimings):
+    """Server-side time per phase, milliseconds: the frame's completion, then the pose's."""
 
-    decode_ms: float
-    queue_ms: float = Field(description="waiting for the model (one inference at a time)")
-    inference_ms: float = Field(description="completion: crop, model, paste back")
     cloud_ms: float = Field(description="back-projection of the completed depth and the returns")
     registration_ms: float = Field(description="the pose from the clouds, all of it")
     search_ms: float = Field(description="of which the global search (0 when tracking held)")

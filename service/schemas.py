@@ -36,6 +36,13 @@ class ErrorBody(BaseModel):
     error: ErrorInfo
 
 
+class V2ErrorBody(BaseModel):
+    """The Open Inference Protocol's error answer (the v2 routes); the stable code is in the
+    ``Sdcnet-Error-Code`` header."""
+
+    error: str = Field(description="what is wrong, for a person")
+
+
 class EncodedArray(BaseModel):
     dtype: str = Field(description="numpy dtype, e.g. 'float32'")
     shape: list[int]
@@ -49,12 +56,17 @@ class CameraIntrinsics(BaseModel):
     cy: float = Field(description="principal point row, pixels")
 
 
-class Timings(BaseModel):
-    """Server-side time per phase, milliseconds."""
+class FrameTimings(BaseModel):
+    """Server-side time per phase of completing a frame, milliseconds."""
 
     decode_ms: float = Field(description="image and depth bytes to validated arrays")
     queue_ms: float = Field(description="waiting for the model (one inference at a time)")
     inference_ms: float = Field(description="crop, model, paste back")
+
+
+class Timings(FrameTimings):
+    """Server-side time per phase, milliseconds."""
+
     encode_ms: float = Field(description="point cloud (and outlier removal), array encoding")
 
 
@@ -94,8 +106,16 @@ class Readiness(BaseModel):
     ready: bool
 
 
+class ServerMetadata(BaseModel):
+    """``GET /v2``: the Open Inference Protocol's server metadata."""
+
+    name: str
+    version: str
+    extensions: list[str]
+
+
 class TensorMetadata(BaseModel):
-    """An input or output of the model graph (KServe v2 style)."""
+    """An input or output of ``POST /v2/models/sdcnet/infer`` (Open Inference Protocol)."""
 
     name: str
     datatype: str = Field(description="KServe v2 datatype, e.g. 'FP32'")

@@ -48,6 +48,12 @@ class Settings(BaseSettings):
         ge=1,
         description="onnxruntime intra-op threads (default: the CPUs this process may use)",
     )
+    spin_wait: bool = Field(
+        default=False,
+        description="let onnxruntime's idle threads spin-wait for work; off: they sleep and "
+        "leave the CPUs to the request's own decoding, encoding and HTTP, and to the other "
+        "processes of a shared machine or a CPU quota",
+    )
     targets: Path | None = Field(
         default=None,
         description="folder of known targets' meshes (STL, OBJ, PLY, glTF/GLB) with a "

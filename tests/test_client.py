@@ -1,4 +1,5 @@
-"""The client (Python API and ``sdc-client``) against the real service in a subprocess."""
+"""The client (Python API and ``sdc-client``) against the real service in a subprocess, on the
+tiny sdcnet-shaped ONNX model (no torch), fed synthetic frames."""
 
 from __future__ import annotations
 
@@ -9,23 +10,33 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 
 import cv2
 import httpx
 import numpy as np
 import pytest
-from fixtures_runtime import MODEL_VERSION, npy_bytes, png_bytes, random_model, running_service
-from fixtures_runtime import sample as generated
 
 from sdcnet.client.api import Client, ServiceError
 from sdcnet.client.cli import main
 from sdcnet.client.outputs import OUTPUT_FILES
+from sdcnet.dataset_format import SampleStore
+from sdcnet.devtools.frames import png_bytes, synthetic_frame, write_dataset
+from sdcnet.devtools.models import TINY_VERSION
+from sdcnet.devtools.serving import running_service
+from sdcnet.npyio import npy_bytes
 from sdcnet.pointcloud import read_ply
+from sdcnet.returns import returns_from_dense, write_returns_csv
+
+
+def frame(size: int):
+    """The test frame: a synthetic spacecraft at 100 m."""
+    return synthetic_frame(size, seed=1)
 
 
 @pytest.fixture(scope="module")
-def url(tmp_path_factory):
-    model = random_model(tmp_path_factory.getbasetemp())
+def url(tmp_path_factory, tiny_model_path):
+    model = tiny_model_path
     log = tmp_path_factory.mktemp("client-service") / "serve.log"
     # one request at a time, so that concurrent clients meet 503s and must retry
     with running_service(model, log, "--max-in-flight=1", "--retry-after=1") as address:
@@ -36,7 +47,7 @@ def url(tmp_path_factory):
 def frame_files(tmp_path_factory):
     """The 256 x 256 test frame as files: gray.png and sparse.npy."""
     folder = tmp_path_factory.mktemp("frame")
-    s = generated(256)
+    s = frame(256)
     cv2.imwrite(str(folder / "gray.png"), s.gray)
     np.save(folder / "sparse.npy", s.sparse)
     return folder / "gray.png", folder / "sparse.npy"
@@ -68,18 +79,18 @@ def test_infer_writes_four_files_that_match_the_service(url, frame_files, tmp_pa
     assert f"element vertex {len(expected['points'])}" in header
     points, comments = read_ply(out / "points.ply")
     np.testing.assert_array_equal(points, expected["points"])
-    assert len(points) == np.count_nonzero(expected["mask"]) > 0
-    assert f"model_version {MODEL_VERSION}" in comments
+    assert len(points) == np.count_nonzero(expected["depth"]) > 3000
+    assert f"model_version {TINY_VERSION}" in comments
 
     preview = cv2.imread(str(out / "preview.png"))
     assert preview.shape == (320, 4 * 320 + 3 * 4, 3)
     printed = capsys.readouterr().out
-    assert MODEL_VERSION in printed and f"points    {len(points):,}" in printed
+    assert TINY_VERSION in printed and f"points    {len(points):,}" in printed
     assert len(printed.splitlines()) <= 24  # one screen
 
 
 def test_python_api_returns_arrays(url, frame_files):
-    s = generated(256)
+    s = frame(256)
     expected = service_answer(url, png_bytes(s.gray), npy_bytes(s.sparse))
     with Client(url) as client:
         from_arrays = client.complete(s.gray, s.sparse)
@@ -88,13 +99,13 @@ def test_python_api_returns_arrays(url, frame_files):
         np.testing.assert_array_equal(result.depth, expected["depth"])
         np.testing.assert_array_equal(result.mask, expected["mask"].astype(bool))
         np.testing.assert_array_equal(result.points, expected["points"])
-        assert result.model_version == MODEL_VERSION
+        assert result.model_version == TINY_VERSION
         assert result.provider == "CPUExecutionProvider"
         assert set(result.timings_ms) == {"decode_ms", "queue_ms", "inference_ms", "encode_ms"}
 
 
 def test_concurrent_clients_retry_503_and_all_succeed(url):
-    s = generated(1024)
+    s = frame(1024)
     overloaded = 'sdcnet_inference_request_failure_total{reason="overloaded"}'
 
     def refused() -> float:
@@ -123,6 +134,17 @@ def test_concurrent_clients_retry_503_and_all_succeed(url):
     assert max(r.latency_s for r in results) >= 1.0  # ... after Retry-After: 1
 
 
+def test_a_kept_alive_connection_the_server_closed_is_replaced(url):
+    """uvicorn closes a connection idle for 5 s; the next request, even one that may not be
+    retried, goes out on a new connection."""
+    s = frame(256)
+    with Client(url, retries=0) as client:
+        first = client.complete(s.gray, s.sparse)
+        time.sleep(6)
+        assert client.health() == {"live": True, "ready": True}
+        np.testing.assert_array_equal(client.complete(s.gray, s.sparse).depth, first.depth)
+
+
 def test_a_missing_or_unreadable_file_exits_2(frame_files, tmp_path, capsys):
     gray, sparse = frame_files
     assert main(["infer", str(tmp_path / "nope.png"), str(sparse)]) == 2
@@ -132,17 +154,34 @@ def test_a_missing_or_unreadable_file_exits_2(frame_files, tmp_path, capsys):
 
 
 def test_a_4xx_answer_exits_3_with_the_service_message(url, tmp_path, capsys):
-    s = generated(256)
-    np.save(tmp_path / "small.npy", np.pad(s.sparse, ((0, 0), (0, 8))))
+    s = frame(256)
+    np.save(tmp_path / "sparse.npy", s.sparse)
     cv2.imwrite(str(tmp_path / "gray.png"), s.gray)
-    argv = ["infer", str(tmp_path / "gray.png"), str(tmp_path / "small.npy"), "--url", url]
-    assert main([*argv, "--out", str(tmp_path / "out")]) == 3
+    argv = ["infer", str(tmp_path / "gray.png"), str(tmp_path / "sparse.npy"), "--url", url]
+    assert main([*argv, "--fx", "-5", "--out", str(tmp_path / "out")]) == 3
     err = capsys.readouterr().err
-    assert "422 wrong_shape" in err and "gray is 256 x 256 but sparse is 264 x 256" in err
+    assert "400 invalid_request" in err
+    assert "parameters.fx: Input should be greater than or equal to 0.001" in err
     assert not (tmp_path / "out").exists()
     with Client(url) as client, pytest.raises(ServiceError) as raised:
         client.complete(s.gray, np.zeros_like(s.sparse))
     assert (raised.value.status, raised.value.code) == (422, "no_returns")
+
+
+def test_a_sparse_map_of_another_size_or_bad_returns_exit_2_before_sending(
+    frame_files, tmp_path, capsys
+):
+    gray, sparse = frame_files
+    np.save(tmp_path / "small.npy", np.pad(np.load(sparse), ((0, 0), (0, 8))))
+    argv = ["infer", str(gray), str(tmp_path / "small.npy"), "--url", "http://127.0.0.1:9"]
+    assert main([*argv, "--retries", "0"]) == 2
+    assert "a (H, W) = (256, 256) map in metres or an (N, 3) list" in capsys.readouterr().err
+    (tmp_path / "bad.csv").write_text("row,col,z_m\n3,300,100\n")
+    argv[2] = str(tmp_path / "bad.csv")
+    assert main([*argv, "--retries", "0"]) == 2
+    assert f"{tmp_path / 'bad.csv'}: return 0 at row 3, col 300 is outside the 256 x 256 image" in (
+        capsys.readouterr().err
+    )
 
 
 def test_an_unreachable_server_exits_4(frame_files, capsys):
@@ -160,30 +199,34 @@ def test_health_and_model_commands(url, capsys):
     assert main(["health", "--url", url]) == 0
     assert capsys.readouterr().out.strip() == f"{url}: live yes, ready yes"
     assert main(["model", "--url", url]) == 0
-    assert json.loads(capsys.readouterr().out)["version"] == MODEL_VERSION
+    assert json.loads(capsys.readouterr().out)["version"] == TINY_VERSION
 
 
 def test_batch_goes_on_past_a_failed_pair(url, tmp_path, capsys):
-    s = generated(256)
+    s = frame(256)
     pairs = tmp_path / "pairs"
     pairs.mkdir()
-    for name in ("a", "b", "c"):
+    for name in ("a", "b", "c", "d"):
         cv2.imwrite(str(pairs / f"{name}.png"), s.gray)
     np.save(pairs / "a.npy", s.sparse)
     np.save(pairs / "b.npy", np.pad(s.sparse, ((0, 4), (0, 0))))  # wrong size: this one fails
     millimetres = np.round(s.sparse * 1000).astype(np.uint16)
     cv2.imwrite(str(pairs / "c.sparse.png"), millimetres)  # 16-bit PNG, needs a scale
+    write_returns_csv(pairs / "d.csv", returns_from_dense(s.sparse))  # a list of returns
     out = tmp_path / "out"
     argv = ["batch", str(pairs), "--out", str(out), "--url", url, "--depth-scale", "0.001"]
     assert main([*argv, "--concurrency", "2", "--no-progress"]) == 1
-    assert sorted(p.name for p in out.iterdir()) == ["a", "c"]
+    assert sorted(p.name for p in out.iterdir()) == ["a", "c", "d"]
     assert sorted(p.name for p in (out / "c").iterdir()) == sorted(OUTPUT_FILES)
+    np.testing.assert_array_equal(
+        np.load(out / "d" / "depth.npy"), np.load(out / "a" / "depth.npy")
+    )
     report = capsys.readouterr().out
-    assert "2 of 3 pairs completed, 1 failed" in report
-    assert "FAILED b: service answered 422 wrong_shape" in report
+    assert "3 of 4 pairs completed, 1 failed" in report
+    assert "FAILED b: sparse must be a (H, W) = (256, 256) map" in report
 
 
-def test_batch_of_a_manifest_and_of_a_dataset_split(url, frame_files, tiny_dataset, tmp_path):
+def test_batch_of_a_manifest_and_of_a_dataset_split(url, frame_files, tmp_path):
     gray, sparse = frame_files
     manifest = gray.parent / "pairs.jsonl"
     line = {"id": "first", "gray": gray.name, "sparse": sparse.name, "fx": 500.0}
@@ -191,21 +234,27 @@ def test_batch_of_a_manifest_and_of_a_dataset_split(url, frame_files, tiny_datas
     assert main(["batch", str(manifest), "--out", str(tmp_path / "m"), "--url", url]) == 0
     assert (tmp_path / "m" / "first" / "points.ply").is_file()
 
-    out = tmp_path / "d"
-    argv = ["batch", str(tiny_dataset), "--out", str(out), "--url", url, "--split", "test"]
-    assert main([*argv, "--no-progress", "--concurrency", "1"]) == 0
-    test_ids = [
-        record["id"]
-        for record in map(json.loads, (tiny_dataset / "manifest.jsonl").read_text().splitlines())
-        if record["split"] == "test"
-    ]
-    assert sorted(p.name for p in out.iterdir()) == sorted(test_ids)
+    dataset = write_dataset(tmp_path / "dataset", {"train": 2, "test": 2})
+    test_ids = [record["id"] for record in SampleStore(dataset).split("test")]
+    for source in (dataset, dataset / "manifest.jsonl"):  # the folder or its manifest
+        out = tmp_path / "d" / source.name
+        argv = ["batch", str(source), "--out", str(out), "--url", url, "--split", "test"]
+        assert main([*argv, "--no-progress", "--concurrency", "1"]) == 0
+        assert sorted(p.name for p in out.iterdir()) == sorted(test_ids) != []
+    store = SampleStore(dataset)
+    returns = store.load(store.split("test")[0]).sparse
+    depth = np.load(out / test_ids[0] / "depth.npy")
+    filled = depth[depth > 0]  # the tiny model spreads the frame's own returns
+    assert filled.size > 0 and returns[returns > 0].min() <= filled.min() <= filled.max()
+    assert filled.max() <= returns.max()
 
 
-def test_the_client_imports_no_torch_onnxruntime_or_fastapi():
+def test_the_client_imports_no_torch_onnxruntime_fastapi_or_httpx():
     code = (
         "import sys, sdcnet.client.cli, sdcnet.client.api\n"
-        "heavy = {'torch', 'onnxruntime', 'fastapi', 'sdcnet.service'} & set(sys.modules)\n"
+        "heavy = {'torch', 'onnxruntime', 'fastapi', 'httpx', 'sdcnet.service'}\n"
+        "heavy &= set(sys.modules)\n"
+        "heavy |= {m for m in sys.modules if m.startswith(('sdcnet.training', 'sdcnet.export'))}\n"
         "assert not heavy, heavy\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

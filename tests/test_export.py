@@ -1,17 +1,19 @@
 """ONNX export: one self-contained graph, metadata, and a parity check that can fail."""
 
 import json
+import math
 
 import onnx
 import pytest
 import torch
 
+from sdcnet.export import onnx_export
 from sdcnet.export.cli import main as export_main
 from sdcnet.export.cli import parity_frames
 from sdcnet.export.onnx_export import export_onnx, model_metadata, parity_check
 from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.training.checkpoint import save_checkpoint
-from sdcnet.training.model.sdcnet import SDCNet
+from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
 
 
 @pytest.fixture(scope="module")
@@ -21,8 +23,12 @@ def frames():
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
+    """Random weights with FSNet's bias raised: every pixel is foreground, so the parity check
+    compares depth on all of them (a model that predicts no foreground compares none)."""
     torch.manual_seed(0)
     model = SDCNet().eval()
+    with torch.no_grad():
+        model.fsnet.head.bias += 3.0
     path = tmp_path_factory.mktemp("onnx") / "m.onnx"
     export_onnx(model, path, model_metadata(model, "test", {"MAEI": 0.1}))
     return model, path
@@ -41,41 +47,69 @@ def test_exported_graph_is_checked_and_carries_its_metadata(exported):
     assert dims == ["batch", "", "height", "width"]
 
 
-def test_parity_holds_at_two_sizes_and_batches(exported, frames):
-    model, path = exported
-    cases = parity_check(model, path, frames, sizes=(256, 512), batches=(1, 2))
-    assert [(c.size, c.batch) for c in cases] == [(256, 1), (256, 2), (512, 1), (512, 2)]
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_every_variant_exports_with_parity_at_two_sizes_and_batches(variant, frames, tmp_path):
+    torch.manual_seed(0)
+    model = build_model(variant).eval()
+    with torch.no_grad():  # a residual head that is not zero, so the whole graph is compared
+        torch.nn.init.normal_(model.fdcnet.head.weight, std=0.05)
+        if model.fsnet is not None:  # and foreground everywhere, so every pixel's depth is
+            model.fsnet.head.bias += 6.0
+    path = export_onnx(model, tmp_path / f"{variant}.onnx", model_metadata(model, "test"))
+    sizes = (256, 512) if variant == "sdcnet" else (256,)  # the shipped design at two sizes
+    cases = parity_check(model, path, frames, sizes=sizes, batches=(1, 2))
+    assert [(c.size, c.batch) for c in cases] == [(s, b) for s in sizes for b in (1, 2)]
     assert all(c.passed for c in cases), cases
-    assert all(c.max_depth_error_m < 1e-4 for c in cases)
+    assert all(c.max_depth_error_m < 5e-4 for c in cases)  # metres; the export's bar is 1 mm
+    assert all(c.mask_agreement == 1.0 for c in cases)
+    assert [c.compared_px for c in cases] == [c.batch * c.size**2 for c in cases]
 
 
-def test_parity_rejects_a_perturbed_model(exported, frames):
-    model, path = exported
-    perturbed = SDCNet().eval()
-    perturbed.load_state_dict(model.state_dict())
+def perturbed(model: SDCNet, depth_bias: float = 0.0, mask_bias: float = 0.0) -> SDCNet:
+    copy = SDCNet().eval()
+    copy.load_state_dict(model.state_dict())
     with torch.no_grad():
-        perturbed.fdcnet.head.bias += 0.01  # 10 cm in depth: the graph no longer matches
-        perturbed.fsnet.head.bias += 3.0  # and the mask flips
-    cases = parity_check(perturbed, path, frames, sizes=(256,), batches=(1,))
-    assert not cases[0].passed
-    assert cases[0].max_depth_error_m == pytest.approx(0.1, rel=1e-3)
+        copy.fdcnet.head.bias += depth_bias
+        copy.fsnet.head.bias += mask_bias
+    return copy
 
 
-def test_sdc_export_command_fails_on_a_bad_checkpoint_and_passes_on_a_good_one(tmp_path, capsys):
+def test_parity_rejects_a_model_whose_depth_differs(exported, frames):
+    model, path = exported
+    (case,) = parity_check(perturbed(model, depth_bias=0.1), path, frames, (256,), (1,))
+    assert not case.passed and case.mask_agreement == 1.0 and case.compared_px == 256**2
+    assert case.max_depth_error_m == pytest.approx(0.1, rel=1e-3)  # the bias x 1 m (residual)
+
+
+def test_parity_rejects_a_model_whose_mask_differs(exported, frames):
+    model, path = exported
+    (case,) = parity_check(perturbed(model, mask_bias=-6.0), path, frames, (256,), (1,))
+    assert not case.passed and case.mask_agreement == 0.0  # PyTorch: all background now
+    assert case.compared_px == 256**2  # onnxruntime's foreground, compared all the same
+
+
+def test_sdc_export_replaces_its_output_only_after_the_parity_check(tmp_path, capsys, monkeypatch):
     (tmp_path / "bad.pt").write_bytes(b"garbage")
-    assert (
-        export_main(["--checkpoint", str(tmp_path / "bad.pt"), "--out", str(tmp_path / "x.onnx")])
-        == 2
-    )
-    assert "cannot read checkpoint" in capsys.readouterr().err
+    out = tmp_path / "model.onnx"
+    assert export_main(["--checkpoint", str(tmp_path / "bad.pt"), "--out", str(out)]) == 2
+    assert capsys.readouterr().err.startswith("sdc-export: error: cannot read checkpoint")
     torch.manual_seed(3)
     save_checkpoint(tmp_path / "good.pt", SDCNet().eval())
-    assert (
-        export_main(["--checkpoint", str(tmp_path / "good.pt"), "--out", str(tmp_path / "g.onnx")])
-        == 0
-    )
-    out = capsys.readouterr().out
-    assert "1024 px, batch 2" in out and "FAILED" not in out
+    args = ["--checkpoint", str(tmp_path / "good.pt"), "--out", str(out)]
+
+    out.write_bytes(b"the model in service")
+    monkeypatch.setattr(onnx_export, "MAX_DEPTH_ERROR_M", -math.inf)  # no graph can pass
+    assert export_main(args) == 1
+    assert "parity check FAILED" in capsys.readouterr().err
+    assert out.read_bytes() == b"the model in service"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.pt", "good.pt", "model.onnx"]
+
+    monkeypatch.undo()
+    assert export_main(args) == 0
+    printed = capsys.readouterr().out
+    assert "1024 px, batch 2" in printed and "FAILED" not in printed
+    assert OnnxModel(out, provider="cpu").info.version.startswith("sdcnet-model-")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.pt", "good.pt", "model.onnx"]
 
 
 def test_loading_a_bad_model_file_says_why(tmp_path):

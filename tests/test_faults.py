@@ -19,8 +19,9 @@ from pathlib import Path
 import onnx
 import onnxruntime as ort
 import pytest
-from fixtures_runtime import random_model
 from onnx import TensorProto, helper
+
+from sdcnet.devtools.models import graph_model
 
 _MISSING_PROVIDER = next(
     name
@@ -41,28 +42,8 @@ class Outcome:
         return lines[-1] if lines else ""
 
 
-def _graph_model(
-    nodes: list, inputs: list[str], outputs: list[str], metadata: dict[str, str] | None = None
-) -> onnx.ModelProto:
-    """An ONNX model of ``nodes`` on float tensors (B, 1, H, W), with ``metadata``."""
-    shape = ["b", 1, "h", "w"]
-    graph = helper.make_graph(
-        nodes,
-        "not-sdcnet",
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in inputs],
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, None) for n in outputs],
-        initializer=[helper.make_tensor("shape", TensorProto.INT64, [4], [1, 1, 7, 7])],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    for key, value in (metadata or {}).items():
-        model.metadata_props.add(key=key, value=value)
-    return model
-
-
-def model_files(base: Path) -> dict[str, Path]:
-    """The broken model files, next to a real (random-weights) sdcnet model."""
-    good = random_model(base)
+def model_files(base: Path, good: Path) -> dict[str, Path]:
+    """The broken model files in ``base``, made from the ``good`` (tiny) sdcnet model."""
     data = good.read_bytes()
     metadata = {p.key: p.value for p in onnx.load(good).metadata_props}
     files = {
@@ -78,7 +59,7 @@ def model_files(base: Path) -> dict[str, Path]:
     paths["directory"].mkdir(exist_ok=True)
     identity = helper.make_node("Identity", ["x"], ["y"])
     paths["not_sdcnet"] = base / "identity.onnx"
-    onnx.save(_graph_model([identity], ["x"], ["y"]), paths["not_sdcnet"])
+    onnx.save(graph_model([identity], ("x",), ("y",)), paths["not_sdcnet"])
     # sdcnet's names and metadata, but intrinsics that are not JSON
     paths["broken_metadata"] = base / "broken-metadata.onnx"
     broken = onnx.load(good)
@@ -91,8 +72,8 @@ def model_files(base: Path) -> dict[str, Path]:
         helper.make_node("Reshape", ["gray", "shape"], ["depth"]),
         helper.make_node("Identity", ["sparse"], ["foreground"]),
     ]
-    impostor = _graph_model(nodes, ["gray", "sparse"], ["depth", "foreground"], metadata)
-    onnx.save(impostor, paths["impostor"])
+    seven = helper.make_tensor("shape", TensorProto.INT64, [4], [1, 1, 7, 7])
+    onnx.save(graph_model(nodes, metadata=metadata, initializers=(seven,)), paths["impostor"])
     paths["good"] = good
     return paths
 
@@ -141,9 +122,9 @@ CASES: dict[str, tuple[str | None, list[str], dict[str, str], str]] = {
 
 
 @pytest.fixture(scope="module")
-def outcomes(tmp_path_factory) -> dict[str, tuple[Outcome, str]]:
+def outcomes(tmp_path_factory, tiny_model_path) -> dict[str, tuple[Outcome, str]]:
     """Start every case at once; (outcome, expected message) per case."""
-    paths = model_files(tmp_path_factory.getbasetemp())
+    paths = model_files(tmp_path_factory.mktemp("faults"), tiny_model_path)
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()

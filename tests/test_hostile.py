@@ -26,16 +26,10 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from fixtures_runtime import (
-    memory_kib,
-    multipart_body,
-    npy_bytes,
-    png_bytes,
-    random_model,
-    sample,
-    sample_files,
-    service_process,
-)
+
+from sdcnet.devtools.frames import multipart_body, png_bytes, sample_files, synthetic_frame
+from sdcnet.devtools.serving import memory_kib, service_process
+from sdcnet.npyio import npy_bytes
 
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 8 * 2**20
@@ -46,13 +40,12 @@ MARKER = "hostile-marker"  # a file that only code run by unpickling would creat
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory):
+def service(tmp_path_factory, tiny_model_path):
     """The service with small limits, after one real frame (so its memory is warmed up)."""
     log = tmp_path_factory.mktemp("hostile") / "serve.log"
     flags = [f"--max-pixels={MAX_PIXELS}", f"--max-upload-bytes={MAX_UPLOAD_BYTES}"]
     flags += [f"--body-timeout={BODY_TIMEOUT_S}", "--max-in-flight=2"]
-    model = random_model(tmp_path_factory.getbasetemp())
-    with service_process(model, log, *flags) as running:
+    with service_process(tiny_model_path, log, *flags) as running:
         response = httpx.post(f"{running.url}/complete", files=good_files(), timeout=60)
         assert response.status_code == 200, response.text
         yield running
@@ -67,7 +60,7 @@ def baseline_kib(service) -> int:
 
 
 def good_files() -> dict[str, tuple[str, bytes]]:
-    return sample_files(sample(256))
+    return sample_files(synthetic_frame(256))
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
@@ -95,7 +88,7 @@ def png(width: int, height: int, depth: int, colour: int, inflated: int | None =
 def jpeg_with_scans(count: int) -> bytes:
     """The test frame as a progressive JPEG, one of its scans repeated up to ``count`` scans:
     libjpeg decodes it (with a warning), each scan going over the whole frame again."""
-    data = png_bytes(sample(256).gray, ".jpg", [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    data = png_bytes(synthetic_frame(256).gray, ".jpg", [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
     starts = [m.start() for m in re.finditer(b"\xff\xda", data)]
     scan = data[starts[-2] : starts[-1]]
     return data[: starts[-1]] + scan * (count - len(starts)) + data[starts[-1] :]
@@ -437,13 +430,24 @@ CATALOGUE: dict[str, tuple[Case, int | None, str | None]] = {
 }
 
 
+@pytest.fixture(scope="module")
+def answers(service, baseline_kib, tmp_path_factory) -> dict[str, tuple[Answer, Path]]:
+    """Every case of the catalogue sent once, in the catalogue's order, after the baseline was
+    read; each with a folder of its own (where an unpickled upload would leave its marker)."""
+    sent = {}
+    for case, (send_case, _, _) in CATALOGUE.items():
+        folder = tmp_path_factory.mktemp("hostile-case")
+        sent[case] = (send_case(service.url, folder), folder)
+    return sent
+
+
 @pytest.mark.parametrize("case", list(CATALOGUE))
-def test_hostile_request_gets_its_4xx_fast(service, baseline_kib, tmp_path, case):
-    send_case, status, code = CATALOGUE[case]
-    answer = send_case(service.url, tmp_path)
+def test_hostile_request_gets_its_4xx_fast(answers, case):
+    _, status, code = CATALOGUE[case]
+    answer, folder = answers[case]
     assert answer.seconds < WALL_LIMIT_S, f"{case} took {answer.seconds:.1f} s"
     assert (answer.status, answer.code()) == (status, code), answer.body[:300]
-    assert not (tmp_path / MARKER).exists(), "the service ran code from the upload"
+    assert not (folder / MARKER).exists(), "the service ran code from the upload"
 
 
 def test_a_client_that_gives_up_mid_body_is_dropped(service, baseline_kib):
@@ -454,9 +458,9 @@ def test_a_client_that_gives_up_mid_body_is_dropped(service, baseline_kib):
     assert answer.status is None or 400 <= answer.status < 500
 
 
-def test_still_serving_without_a_500_and_memory_bounded(service, baseline_kib):
-    """After the catalogue (run before this, in file order): a real frame still gets 200, no
-    request was counted as an internal error, and the server's peak memory stayed bounded."""
+def test_still_serving_without_a_500_and_memory_bounded(service, baseline_kib, answers):
+    """After the whole catalogue (``answers``): a real frame still gets 200, no request was
+    counted as an internal error, and the server's peak memory stayed bounded."""
     response = httpx.post(f"{service.url}/complete", files=good_files(), timeout=60)
     assert response.status_code == 200, response.text
     metrics = httpx.get(f"{service.url}/metrics").text

@@ -7,10 +7,15 @@ import torch
 from sdcnet.dataset_format import SampleStore
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.dataset import TileDataset
-from sdcnet.training.losses import foreground_depth_loss, segmentation_loss
+from sdcnet.training.losses import (
+    depth_gradient_loss,
+    foreground_depth_loss,
+    segmentation_loss,
+    soft_iou_loss,
+)
 from sdcnet.training.model.cca import CrossChannelAttention
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
-from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet
+from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet, build_model
 
 
 def lidar_like(batch: int, height: int, width: int, depth: float = 120.0) -> torch.Tensor:
@@ -49,7 +54,7 @@ def test_fsnet_input_choices_of_table_4(inputs):
 
 
 def test_cca_weights_and_attention_do_not_depend_on_input_size():
-    cca = CrossChannelAttention(16, grid=4, heads=4)
+    cca = CrossChannelAttention(channels=16, grid=4, heads=4)
     shapes = {k: v.shape for k, v in cca.state_dict().items()}
     for size in ((16, 16), (32, 48), (64, 24)):
         f_s, f_g = torch.rand(2, 16, *size), torch.rand(2, 16, *size)
@@ -137,3 +142,39 @@ def test_a_few_optimisation_steps_reduce_both_losses(tiny_dataset):
         opt.step()
         depth_losses.append(loss.item())
     assert depth_losses[-1] < 0.8 * depth_losses[0]
+
+
+def test_gradient_loss_sees_a_ripple_the_l1_loss_forgives():
+    gt = torch.full((1, 1, 4, 4), 100.0)
+    ripple = gt + torch.tensor([0.01, -0.01, 0.01, -0.01]).reshape(1, 1, 4, 1)  # rows alternate
+    prob = torch.ones(1, 1, 4, 4)
+    assert foreground_depth_loss(ripple, prob, gt).item() == pytest.approx(0.01, rel=1e-3)
+    # 12 vertical pairs step by 0.02 m, 12 horizontal pairs do not step: mean 0.01 m per pixel
+    assert depth_gradient_loss(ripple, prob, gt).item() == pytest.approx(0.01, rel=1e-3)
+    assert depth_gradient_loss(gt + 0.5, prob, gt).item() == pytest.approx(0.0, abs=1e-5)
+    prob[..., :2, :] = 0  # the last two rows: 4 vertical pairs (0.02 m off), 6 horizontal ones
+    assert depth_gradient_loss(ripple, prob, gt).item() == pytest.approx(4 * 0.02 / 10, rel=1e-3)
+
+
+def test_soft_iou_loss_is_one_minus_the_iou_of_a_hard_mask():
+    gt = torch.zeros(1, 1, 4, 4)
+    gt[..., :2, :] = 50.0  # 8 pixels of foreground
+    prob = torch.zeros(1, 1, 4, 4)
+    prob[..., 1:3, :] = 1.0  # 8 pixels predicted, 4 right: IOU 4 / 12
+    assert soft_iou_loss(prob, gt).item() == pytest.approx(1 - 4 / 12)
+    assert soft_iou_loss((gt > 0).float(), gt).item() == pytest.approx(0.0)
+
+
+def test_an_untrained_refiner_leaves_fsnets_mask_as_it_was():
+    torch.manual_seed(0)
+    plain = build_model("sdcnet", mask_refiner=False).eval()
+    refined = build_model("sdcnet").eval()
+    refined.load_state_dict(plain.state_dict(), strict=False)
+    assert set(refined.state_dict()) - set(plain.state_dict()) == {
+        f"refiner.{k}" for k in refined.refiner.state_dict()
+    }
+    gray, sparse = torch.rand(1, 1, 128, 128), lidar_like(1, 128, 128)
+    with torch.no_grad():
+        torch.testing.assert_close(plain.segment(gray, sparse), refined.segment(gray, sparse))
+    trainable = {id(p) for p in refined.segmentation_parameters()}
+    assert all(id(p) in trainable for p in refined.refiner.parameters())

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sdcnet.pipeline import complete, region_of_interest, resample_sparse
+from sdcnet.pipeline import complete, drop_specks, region_of_interest, resample_sparse
 
 
 def frame(size: int = 1024, spacing: tuple[int, int] = (18, 12)):
@@ -32,14 +32,14 @@ def test_region_holds_every_return_and_is_aligned():
     assert region.x0 <= cols.min() and cols.max() < region.x1
     assert region.shape[0] % 64 == 0 and region.shape[1] % 64 == 0
     assert region.shape[0] < 1024, "cropped, not the whole frame"
-    empty = region_of_interest(np.zeros((100, 80), np.float32))
+    empty = region_of_interest(np.zeros((100, 80), np.float32), stride=64)
     assert empty.shape == (100, 80)
 
 
 def test_complete_runs_on_the_crop_and_pastes_back():
     gray, sparse = frame()
     calls = []
-    result = complete(bright_model(calls), gray, sparse)
+    result = complete(bright_model(calls), gray, sparse, stride=64)
     ((shape, returns),) = calls
     assert shape[2:] == result.region.shape and returns == np.count_nonzero(sparse)
     np.testing.assert_array_equal(result.mask, gray > 127)
@@ -53,14 +53,14 @@ def test_zoom_resamples_the_crop_for_the_network_and_answers_at_image_resolution
     sparse = np.zeros((512, 512), np.float32)
     sparse[200:300:9, 150:350:6] = 120.0
     calls = []
-    result = complete(bright_model(calls), gray, sparse, zoom=2.0)
+    result = complete(bright_model(calls), gray, sparse, stride=64, zoom=2.0)
     ((shape, returns),) = calls
     assert shape[2:] == (2 * result.region.shape[0], 2 * result.region.shape[1])
     assert returns == np.count_nonzero(sparse), "every return kept once"
     assert result.mask.shape == (512, 512)
     assert abs(int(result.mask.sum()) - 100 * 200) < 0.02 * 100 * 200
     with pytest.raises(ValueError, match="zoom"):
-        complete(bright_model([]), gray, sparse, zoom=0)
+        complete(bright_model([]), gray, sparse, stride=64, zoom=0)
 
 
 def test_resample_sparse_keeps_returns_and_the_nearest_wins():
@@ -70,3 +70,31 @@ def test_resample_sparse_keeps_returns_and_the_nearest_wins():
     assert small[0, 0] == 40.0 and small[2, 3] == 70.0 and np.count_nonzero(small) == 2
     big = resample_sparse(sparse, (16, 16))
     assert sorted(big[big > 0]) == [40.0, 50.0, 70.0]
+
+
+def test_stars_are_dropped_and_detached_parts_near_the_returns_kept():
+    mask = np.zeros((200, 200), bool)
+    sparse = np.zeros((200, 200), np.float32)
+    mask[50:90, 50:90] = True  # the body
+    sparse[60, 60] = 100.0
+    mask[95:97, 50:90] = True  # a boom 5 px from the body, no return
+    mask[110:112, 50:90] = True  # and its continuation 13 px further: kept hop by hop
+    mask[150:153, 170:173] = True  # a star 60 px away
+    mask[40, 95] = True  # a speck 10 px off the body's corner
+    kept = drop_specks(mask, sparse, keep_distance_px=16.0)
+    assert kept[50:90, 50:90].all() and kept[95:97].any() and kept[110:112, 50:90].all()
+    assert not kept[150:153, 170:173].any()
+    assert kept[40, 95]  # within reach of the body: taken for a part, kept
+    edge_return = np.zeros_like(sparse)
+    edge_return[49, 70] = 100.0  # a return one pixel outside the predicted outline
+    assert drop_specks(mask, edge_return, 16.0)[50:90, 50:90].all()
+    assert not drop_specks(mask, np.zeros_like(sparse), 16.0).any()
+
+
+def test_complete_drops_stars_from_the_mask_and_the_depth():
+    gray, sparse = frame()
+    gray[300:303, 210:213] = 255  # a star inside the crop, ~100 px from every return
+    result = complete(bright_model([]), gray, sparse, stride=64)
+    assert result.region.y0 < 300 and result.region.x0 < 210
+    assert not result.mask[300:303, 210:213].any() and (result.depth[300:303, 210:213] == 0).all()
+    assert result.mask[420:580, 320:680].all()

@@ -1,10 +1,22 @@
-"""The pose evaluation's bookkeeping: success, frames without a pose, the tables."""
+"""The pose evaluation: a rendered frame's pose from the shipped model's cloud, and the
+bookkeeping (success, frames without a pose, the tables)."""
 
 import math
 
 import pytest
 
-from sdcnet.training.pose_eval import FrameResult, report, summary
+from sdcnet.runtime import OnnxModel
+from sdcnet.service.settings import shipped_model_path
+from sdcnet.targets import prepare_target
+from sdcnet.training.data.generate import GenerateConfig, build_model
+from sdcnet.training.pose_eval import (
+    RAW,
+    FrameResult,
+    evaluate_frames,
+    report,
+    single_frames,
+    summary,
+)
 
 
 def _frame(rotation_deg: float, translation_m: float, cloud: str = "completed", **kw):
@@ -46,3 +58,18 @@ def test_the_report_separates_clouds_modes_and_spacecraft():
     assert "tumble, completed" in data["run"]["per_trajectory"]
     assert "b, completed, tracking" in data["run"]["per_spacecraft"]
     assert "### run" in text
+
+
+def test_the_shipped_models_cloud_gives_the_pose_of_a_rendered_frame():
+    """End to end as ``sdc-train pose`` runs it: a procedural spacecraft rendered at 1024 x
+    1024 by the generator, completed by the shipped model, registered from scratch."""
+    config = GenerateConfig(models=1, views=1, seed=3, split=(1, 0, 0))
+    craft = build_model(config, 0)
+    target = prepare_target(craft.name, craft.mesh.vertices, craft.mesh.faces)
+    onnx = OnnxModel(shipped_model_path(), threads=2)
+    frames = single_frames(config, {0: (craft, target)}, 1, "test")
+    results = {r.cloud: r for r in evaluate_frames(frames, {"completed": (onnx.run, onnx.stride)})}
+    assert set(results) == {"completed", RAW}
+    completed = results["completed"]
+    assert completed.success, completed
+    assert completed.rotation_deg < 1 and completed.translation_m < 0.1

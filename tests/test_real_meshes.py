@@ -57,3 +57,16 @@ def test_missing_or_malformed_manifest_entries_are_explained(tmp_path):
     (tmp_path / "manifest.json").write_text("{not json")
     with pytest.raises(ValueError, match="not valid JSON"):
         read_mesh_folder(tmp_path)
+
+
+def test_sdc_data_example_makes_the_shipped_example_again(tmp_path, capsys):
+    """``examples/`` is what ``sdc-data example`` renders (the README says how it was made)."""
+    from sdcnet.training.data.cli import main as data_main
+
+    argv = ["example", "--meshes", str(REAL), "--name", "tdrs", "--seed", "1"]
+    assert data_main([*argv, "--distance", "140", "--out", str(tmp_path)]) == 0
+    shipped = Path(__file__).resolve().parents[1] / "examples"
+    for name in ("tdrs.png", "tdrs.returns.csv"):
+        assert (tmp_path / name).read_bytes() == (shipped / name).read_bytes(), name
+    assert data_main([*argv[:3], "--name", "hubble", "--out", str(tmp_path)]) == 2
+    assert "no mesh called 'hubble'" in capsys.readouterr().err

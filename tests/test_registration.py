@@ -8,6 +8,7 @@ import pytest
 import small_gicp
 import trimesh
 
+from sdcnet.devtools.targets import probe_mesh
 from sdcnet.registration import TargetModel, UnusableCloudError, estimate_pose
 from sdcnet.rigid import (
     Pose,
@@ -18,7 +19,6 @@ from sdcnet.rigid import (
     pose_errors,
     quaternion_from_matrix,
 )
-from sdcnet.training.data.spacecraft import procedural_spacecraft
 
 
 def visible_samples(mesh: trimesh.Trimesh, pose: Pose, seed: int, cell: float = 0.02):
@@ -46,8 +46,8 @@ def symmetric_distance(model: TargetModel, a: Pose, b: Pose) -> float:
 
 @pytest.fixture(scope="module")
 def spacecraft():
-    craft = procedural_spacecraft(7, 2)
-    return craft.mesh, TargetModel(craft.mesh.vertices, craft.mesh.faces)
+    mesh = probe_mesh()
+    return mesh, TargetModel(mesh.vertices, mesh.faces)
 
 
 def test_a_cloud_sampled_under_a_known_pose_gives_that_pose(spacecraft):

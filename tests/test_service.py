@@ -1,5 +1,14 @@
-"""The inference service over real HTTP: the real app under uvicorn in a subprocess, on a model
-exported from the real architecture, fed generated frames."""
+"""The inference service, fed synthetic frames, on the tiny sdcnet-shaped ONNX model (real
+onnxruntime sessions; no torch). Most tests run twice, through the ``client`` fixture:
+
+- ``uvicorn``: over real HTTP, the real app under uvicorn in a subprocess (``sdc-serve``);
+- ``in-process``: FastAPI's ``TestClient`` on ``create_app`` with the same model, loaded once
+  for the module (its lifespan runs; no socket).
+
+Those that need real sockets or concurrency talk to the subprocess only; those that reach
+inside the app run in process only, through dependency overrides (``get_engine``,
+``get_settings``): not ready, a model that fails, other limits.
+"""
 
 from __future__ import annotations
 
@@ -10,28 +19,47 @@ import re
 import subprocess
 import sys
 import threading
+import time
 import zipfile
 
 import cv2
 import httpx
 import numpy as np
 import pytest
-from fixtures_runtime import MODEL_VERSION, npy_bytes, png_bytes, random_model, running_service
-from fixtures_runtime import sample as generated
+from fastapi.testclient import TestClient
 
 from sdcnet.camera import Intrinsics
+from sdcnet.devtools.frames import png_bytes, synthetic_frame
+from sdcnet.devtools.models import TINY_VERSION
+from sdcnet.devtools.serving import running_service
+from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project, read_ply, statistical_outliers
 from sdcnet.runtime import OnnxModel
+from sdcnet.service.app import create_app
+from sdcnet.service.deps import get_engine
+from sdcnet.service.inference import Engine
+from sdcnet.service.settings import Settings, get_settings
 
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 8 * 2**20
 MAX_IN_FLIGHT = 2
 
 
+def settings(model_path) -> Settings:
+    return Settings(
+        model_path=model_path,
+        threads=1,
+        max_in_flight=MAX_IN_FLIGHT,
+        max_pixels=MAX_PIXELS,
+        max_upload_bytes=MAX_UPLOAD_BYTES,
+        retry_after_s=2,
+    )
+
+
 @pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return random_model(tmp_path_factory.getbasetemp())
+def model_path(tiny_model_path):
+    return tiny_model_path
 
 
 @pytest.fixture(scope="module")
@@ -43,51 +71,85 @@ def url(model_path, tmp_path_factory):
         yield address
 
 
+@pytest.fixture(scope="module")
+def engine(model_path) -> Engine:
+    return Engine(OnnxModel(model_path, provider="cpu", threads=1))
+
+
+@pytest.fixture(scope="module", params=["uvicorn", "in-process"])
+def client(request, model_path, engine):
+    """An HTTP client of the service: the subprocess's URL, or the app in this process."""
+    if request.param == "uvicorn":
+        with httpx.Client(base_url=request.getfixturevalue("url"), timeout=60) as http:
+            yield http
+        return
+    with TestClient(create_app(settings(model_path), engine.model)) as http:
+        yield http
+
+
+def frame():
+    """The 256 x 256 test frame: a synthetic spacecraft at 100 m."""
+    return synthetic_frame(256, seed=1)
+
+
 def frame_files(gray=None, sparse=None) -> dict:
     """Multipart files of the 256 x 256 test frame, with either part replaced."""
-    s = generated(256)
+    s = frame()
     return {
         "gray": ("gray.png", png_bytes(s.gray) if gray is None else gray),
         "sparse": ("sparse.npy", npy_bytes(s.sparse) if sparse is None else sparse),
     }
 
 
-def post(url: str, files: dict, data: dict | None = None, **params) -> httpx.Response:
-    return httpx.post(f"{url}/complete", files=files, data=data, params=params, timeout=60)
+def post(client: httpx.Client, files: dict, data: dict | None = None, **params) -> httpx.Response:
+    return client.post("/complete", files=files, data=data, params=params)
 
 
 def decoded(array: dict) -> np.ndarray:
     return np.load(io.BytesIO(base64.b64decode(array["npy_base64"])), allow_pickle=False)
 
 
-def metric(url: str, name: str, **labels: str) -> float:
-    """Value of one Prometheus sample (0 when absent)."""
-    text = httpx.get(f"{url}/metrics").text
+def metric(client: httpx.Client, name: str, **labels: str) -> float:
+    """Value of one Prometheus sample (0 when absent), read once no request is pending: the
+    counters of a request move after its answer is sent, so a client can read them before."""
     wanted = ",".join(f'{k}="{v}"' for k, v in labels.items())
     pattern = "^" + re.escape(name + (f"{{{wanted}}}" if wanted else "")) + r" (\S+)$"
+    for _ in range(100):
+        text = client.get("/metrics").text
+        if re.search(r"^sdcnet_inference_pending_requests 0\.0$", text, re.MULTILINE):
+            break
+        time.sleep(0.01)
     found = re.search(pattern, text, re.MULTILINE)
     return float(found.group(1)) if found else 0.0
 
 
-def test_probes_answer_under_short_and_kserve_names(url):
+def test_probes_answer_under_short_and_kserve_names(client):
     for path in ("/health", "/v2/health/live"):
-        response = httpx.get(url + path)
+        response = client.get(path)
         assert response.status_code == 200 and response.json() == {"live": True}
     for path in ("/ready", "/v2/health/ready", "/v2/models/sdcnet/ready"):
-        response = httpx.get(url + path)
+        response = client.get(path)
         assert response.status_code == 200 and response.json() == {"ready": True}
-    assert httpx.get(f"{url}/docs").status_code == 200
-    assert "/complete" in httpx.get(f"{url}/openapi.json").json()["paths"]
+    assert client.get("/docs").status_code == 200
+    assert "/complete" in client.get("/openapi.json").json()["paths"]
 
 
-def test_model_metadata(url):
-    meta = httpx.get(f"{url}/model").json()
-    assert meta == httpx.get(f"{url}/v2/models/sdcnet").json()
-    assert meta["name"] == "sdcnet" and meta["versions"] == [MODEL_VERSION]
+def test_model_metadata(client):
+    meta = client.get("/model").json()
+    assert meta == client.get("/v2/models/sdcnet").json()
+    assert meta["name"] == "sdcnet" and meta["versions"] == [TINY_VERSION]
     assert meta["provider"] == "CPUExecutionProvider" and meta["threads"] == 1
-    assert [t["name"] for t in meta["inputs"]] == ["gray", "sparse"]
-    assert [t["name"] for t in meta["outputs"]] == ["depth", "foreground"]
-    assert meta["inputs"][0]["datatype"] == "FP32" and meta["inputs"][0]["shape"][1] == 1
+    # the tensors of POST /v2/models/sdcnet/infer, not the ONNX graph's
+    tensors = {t["name"]: (t["datatype"], t["shape"]) for t in meta["inputs"] + meta["outputs"]}
+    assert tensors == {
+        "gray": ("UINT8", [-1, -1]),
+        "sparse": ("FP32", [-1, -1]),
+        "returns": ("FP32", [-1, 3]),
+        "depth": ("FP32", [-1, -1]),
+        "mask": ("UINT8", [-1, -1]),
+        "points": ("FP32", [-1, 3]),
+    }
+    assert "metres" in meta["inputs"][1]["description"]
     assert meta["intrinsics"]["fx"] == pytest.approx(7939.2, abs=0.1)
     assert meta["limits"] == {
         "max_pixels": MAX_PIXELS,
@@ -96,9 +158,9 @@ def test_model_metadata(url):
     }
 
 
-def test_a_generated_frame_round_trips_and_matches_onnxruntime(url, model_path):
-    s = generated(256)
-    response = post(url, frame_files())
+def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
+    s = frame()
+    response = post(client, frame_files())
     assert response.status_code == 200, response.text
     body = response.json()
     depth, mask, points = (decoded(body[k]) for k in ("depth", "mask", "points"))
@@ -110,9 +172,13 @@ def test_a_generated_frame_round_trips_and_matches_onnxruntime(url, model_path):
     assert depth.dtype == np.float32 and mask.dtype == np.uint8 and points.dtype == np.float32
     np.testing.assert_array_equal(depth, direct.depth)
     np.testing.assert_array_equal(mask, direct.mask.astype(np.uint8))
-    np.testing.assert_array_equal(points, back_project(direct.depth, direct.mask, K))
-    assert mask.sum() > 0 and len(points) == body["point_count"] == mask.sum()
-    assert body["model_version"] == MODEL_VERSION
+    valid = direct.mask & (direct.depth > 0)
+    np.testing.assert_array_equal(points, back_project(direct.depth, valid, K))
+    # the tiny model calls bright pixels spacecraft: the drawn craft, not the dim stars
+    np.testing.assert_array_equal(mask.astype(bool), s.gray > 127)
+    assert len(points) == body["point_count"] == np.count_nonzero(depth) > 3000
+    assert np.abs(depth - s.depth)[depth > 0].max() < 0.5  # a fill of returns on a plane
+    assert body["model_version"] == TINY_VERSION
     assert body["provider"] == "CPUExecutionProvider"
     assert body["intrinsics"] == pytest.approx({"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy})
     assert body["returns"] == np.count_nonzero(s.sparse)
@@ -120,17 +186,17 @@ def test_a_generated_frame_round_trips_and_matches_onnxruntime(url, model_path):
     assert "inference;dur=" in response.headers["server-timing"]
 
 
-def test_odd_focal_lengths_are_served_at_the_nearest_supported_scale(url):
+def test_odd_focal_lengths_are_served_at_the_nearest_supported_scale(client):
     for fx in ("1e-9", "1.0", "1e9"):
-        response = post(url, frame_files(), {"fx": fx}, format="npz")
+        response = post(client, frame_files(), {"fx": fx}, format="npz")
         assert response.status_code == 200, response.text
 
 
-def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(url):
+def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
     fields = {"fx": "2000", "fy": "2020", "cx": "100.5", "cy": "130", "outlier_removal": "true"}
-    as_json = post(url, frame_files(), fields).json()
-    npz = post(url, frame_files(), fields, format="npz")
-    ply = post(url, frame_files(), fields, format="ply")
+    as_json = post(client, frame_files(), fields).json()
+    npz = post(client, frame_files(), fields, format="npz")
+    ply = post(client, frame_files(), fields, format="ply")
     assert npz.status_code == ply.status_code == 200
     assert 'filename="sdcnet.npz"' in npz.headers["content-disposition"]
     names = zipfile.ZipFile(io.BytesIO(npz.content)).namelist()  # any zip reader opens it
@@ -146,20 +212,21 @@ def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(url):
 
     # the points are the kept pixels, back-projected with the intrinsics given
     K = Intrinsics(2000.0, 2020.0, 100.5, 130.0, 256, 256)
-    kept = statistical_outliers(depth, mask.astype(bool), K)
+    valid = mask.astype(bool) & (depth > 0)
+    kept = statistical_outliers(depth, valid, K)
     np.testing.assert_array_equal(points, back_project(depth, kept, K))
-    assert meta["outliers_removed"] == mask.sum() - len(points)
+    assert meta["outliers_removed"] == valid.sum() - len(points)
 
     cloud, comments = read_ply(ply.content)
     np.testing.assert_array_equal(cloud, points)
-    assert f"model_version {MODEL_VERSION}" in comments
+    assert f"model_version {TINY_VERSION}" in comments
 
 
 @pytest.mark.parametrize(
     "variant", ["gray16", "colour_jpeg", "colour_bmp", "tiff", "float64", "sparse_png16"]
 )
-def test_accepted_input_variants(url, variant):
-    s = generated(256)
+def test_accepted_input_variants(client, variant):
+    s = frame()
     gray16 = s.gray.astype(np.uint16) * 257
     colour = cv2.cvtColor(s.gray, cv2.COLOR_GRAY2BGR)
     millimetres = np.round(s.sparse * 1000).astype(np.uint16)
@@ -171,7 +238,7 @@ def test_accepted_input_variants(url, variant):
         "float64": (None, npy_bytes(s.sparse.astype(np.float64)), None),
         "sparse_png16": (None, png_bytes(millimetres), {"depth_scale": "0.001"}),
     }[variant]
-    response = post(url, frame_files(gray, sparse), fields)
+    response = post(client, frame_files(gray, sparse), fields)
     assert response.status_code == 200, response.text
     assert response.json()["returns"] == np.count_nonzero(s.sparse)
 
@@ -187,7 +254,7 @@ def _huge_npy_header() -> bytes:
 
 def bad_request(case: str) -> tuple[dict, dict | None, dict]:
     """(files, form fields, query) of one bad request of issue 5's list."""
-    s = generated(256)
+    s = frame()
     good_png = png_bytes(s.gray)
     with_nan, with_inf, negative = s.sparse.copy(), s.sparse.copy(), s.sparse.copy()
     with_nan[5, 5], with_inf[5, 5], negative[5, 5] = np.nan, np.inf, -1.0
@@ -269,10 +336,10 @@ def assert_error_shape(response: httpx.Response, status: int, code: str) -> dict
 
 
 @pytest.mark.parametrize("case", sorted(BAD_INPUTS))
-def test_bad_input_gets_a_4xx_json_error(url, case):
+def test_bad_input_gets_a_4xx_json_error(client, case):
     files, fields, query = bad_request(case)
     status, code = BAD_INPUTS[case]
-    assert_error_shape(post(url, files, fields, **query), status, code)
+    assert_error_shape(post(client, files, fields, **query), status, code)
 
 
 def test_a_streamed_body_past_the_byte_limit_gets_413(url):
@@ -294,19 +361,23 @@ def test_a_streamed_body_past_the_byte_limit_gets_413(url):
     assert_error_shape(response, 413, "too_large")
 
 
-def test_unknown_paths_and_methods_get_the_same_error_shape(url):
-    assert_error_shape(httpx.get(f"{url}/nowhere"), 404, "not_found")
-    assert_error_shape(httpx.get(f"{url}/complete"), 405, "method_not_allowed")
-    error = assert_error_shape(post(url, {"gray": frame_files()["gray"]}), 422, "invalid_request")
-    assert error["details"] == [
-        {"location": "form", "field": "sparse", "message": "Field required"}
-    ]
+def test_unknown_paths_and_methods_get_the_same_error_shape(client):
+    assert_error_shape(client.get("/nowhere"), 404, "not_found")
+    assert_error_shape(client.get("/complete"), 405, "method_not_allowed")
+    error = assert_error_shape(
+        post(client, {"gray": frame_files()["gray"]}), 422, "invalid_request"
+    )
+    assert "the form field sparse (dense map) or returns (list), not neither" in error["message"]
+    error = assert_error_shape(
+        post(client, {"sparse": frame_files()["sparse"]}), 422, "invalid_request"
+    )
+    assert error["details"] == [{"location": "form", "field": "gray", "message": "Field required"}]
 
 
-def test_mangled_files_never_get_a_500(url):
+def test_mangled_files_never_get_a_500(client):
     """Random bit flips, header damage and truncation in every accepted format: always 4xx
     (or 200 when the damage is harmless), never 500."""
-    s = generated(256)
+    s = frame()
     originals = [png_bytes(s.gray, ext) for ext in (".png", ".tiff", ".jpg", ".bmp")]
     originals += [npy_bytes(s.sparse)]
     rng = np.random.default_rng(7)
@@ -318,27 +389,32 @@ def test_mangled_files_never_get_a_500(url):
             if at < len(data):
                 data[at] = rng.integers(0, 256)
         files = frame_files(sparse=bytes(data)) if i % 5 == 4 else frame_files(gray=bytes(data))
-        response = post(url, files)
+        response = post(client, files)
         assert response.status_code < 500, (i, response.text)
 
 
-def test_the_service_still_serves_after_bad_input_and_never_answered_500(url):
-    assert post(url, frame_files()).status_code == 200
-    assert metric(url, "sdcnet_inference_request_failure_total", reason="internal_error") == 0
-    assert metric(url, "sdcnet_inference_request_failure_total", reason="invalid_depth") >= 3
+def test_the_service_still_serves_after_bad_input_and_never_answered_500(client):
+    failed = metric(client, "sdcnet_inference_request_failure_total", reason="invalid_depth")
+    for case in ("nan_depth", "inf_depth", "negative_depth"):
+        assert post(client, *bad_request(case)[:2]).status_code == 422
+    assert post(client, frame_files()).status_code == 200
+    assert metric(client, "sdcnet_inference_request_failure_total", reason="internal_error") == 0
+    invalid = metric(client, "sdcnet_inference_request_failure_total", reason="invalid_depth")
+    assert invalid == failed + 3
 
 
 def test_concurrent_requests_get_200_or_503_with_retry_after(url):
-    s = generated(1024)
+    s = synthetic_frame(1024, seed=2)
     files = {"gray": ("g.png", png_bytes(s.gray)), "sparse": ("s.npy", npy_bytes(s.sparse))}
-    before = metric(url, "sdcnet_inference_request_success_total")
+    http = httpx.Client(base_url=url, timeout=60)
+    before = metric(http, "sdcnet_inference_request_success_total")
     start = threading.Barrier(13)
     responses: list[httpx.Response] = []
     probes: list[int] = []
 
     def send() -> None:
         start.wait()
-        responses.append(post(url, files, format="ply"))
+        responses.append(httpx.post(f"{url}/complete", files=files, params={"format": "ply"}))
 
     def probe() -> None:  # probes are never limited, even with the service full
         start.wait()
@@ -358,26 +434,80 @@ def test_concurrent_requests_get_200_or_503_with_retry_after(url):
         if r.status_code == 503:
             assert_error_shape(r, 503, "overloaded")
             assert r.headers["retry-after"] == "2"
-    assert metric(url, "sdcnet_inference_request_success_total") == before + statuses.count(200)
-    assert metric(url, "sdcnet_inference_request_failure_total", reason="overloaded") >= 1
-    assert metric(url, "sdcnet_inference_pending_requests") == 0
+    assert metric(http, "sdcnet_inference_request_success_total") == before + statuses.count(200)
+    assert metric(http, "sdcnet_inference_request_failure_total", reason="overloaded") >= 1
+    assert metric(http, "sdcnet_inference_pending_requests") == 0
     assert probes == [200, 200]
+    http.close()
 
 
-def test_metrics_move_with_requests(url):
-    ok = metric(url, "sdcnet_inference_request_success_total")
-    failed = metric(url, "sdcnet_inference_request_failure_total", reason="no_returns")
-    timed = metric(url, "sdcnet_inference_phase_duration_seconds_count", phase="inference")
-    assert post(url, frame_files()).status_code == 200
-    assert post(url, *bad_request("no_returns")[:2]).status_code == 422
-    assert metric(url, "sdcnet_inference_request_success_total") == ok + 1
-    assert metric(url, "sdcnet_inference_request_failure_total", reason="no_returns") == failed + 1
-    assert (
-        metric(url, "sdcnet_inference_phase_duration_seconds_count", phase="inference") == timed + 1
-    )
-    info = {"provider": "CPUExecutionProvider", "threads": "1", "version": MODEL_VERSION}
-    assert metric(url, "sdcnet_model_info", **info) == 1
-    assert metric(url, "sdcnet_inference_request_duration_seconds_count") >= 1
+def test_metrics_move_with_requests(client):
+    ok = metric(client, "sdcnet_inference_request_success_total")
+    failed = metric(client, "sdcnet_inference_request_failure_total", reason="no_returns")
+    timed = metric(client, "sdcnet_inference_phase_duration_seconds_count", phase="inference")
+    assert post(client, frame_files()).status_code == 200
+    assert post(client, *bad_request("no_returns")[:2]).status_code == 422
+    assert metric(client, "sdcnet_inference_request_success_total") == ok + 1
+    after = metric(client, "sdcnet_inference_request_failure_total", reason="no_returns")
+    assert after == failed + 1
+    timed_after = metric(client, "sdcnet_inference_phase_duration_seconds_count", phase="inference")
+    assert timed_after == timed + 1
+    info = {"provider": "CPUExecutionProvider", "threads": "1", "version": TINY_VERSION}
+    assert metric(client, "sdcnet_model_info", **info) == 1
+    assert metric(client, "sdcnet_inference_request_duration_seconds_count") >= 1
+
+
+# -- in process only: what dependency overrides reach --------------------------------------
+
+
+def test_without_a_model_the_probes_and_requests_say_not_ready(model_path):
+    """No lifespan has run (no ``with``): no model yet, as while starting or stopping."""
+    http = TestClient(create_app(settings(model_path)))
+    assert http.get("/health").json() == {"live": True}
+    for response in (http.get("/ready"), post(http, frame_files())):
+        assert_error_shape(response, 503, "not_ready")
+        assert response.headers["retry-after"] == "2"
+
+
+def test_the_lifespan_loads_the_model_and_drops_it_on_shutdown(model_path):
+    app = create_app(settings(model_path))
+    with TestClient(app) as http:
+        assert http.get("/ready").status_code == 200
+        assert app.state.engine.model.info.version == TINY_VERSION
+    assert app.state.engine is None
+
+
+class FailingModel:
+    """A loaded model whose inference raises, as a bug in a graph or a runtime would."""
+
+    def __init__(self, model: OnnxModel):
+        self.info, self.provider, self.stride = model.info, model.provider, model.stride
+
+    def run(self, gray: np.ndarray, sparse: np.ndarray):
+        raise RuntimeError("the model broke")
+
+
+def test_a_failing_model_is_a_500_of_the_error_shape_and_the_service_goes_on(model_path, engine):
+    app = create_app(settings(model_path), engine.model)
+    app.dependency_overrides[get_engine] = lambda: Engine(FailingModel(engine.model))
+    with TestClient(app, raise_server_exceptions=False) as http:
+        error = assert_error_shape(post(http, frame_files()), 500, "internal_error")
+        assert "the model broke" not in error["message"]  # details stay in the server log
+        assert metric(http, "sdcnet_inference_request_failure_total", reason="internal_error") == 1
+        del app.dependency_overrides[get_engine]
+        assert post(http, frame_files()).status_code == 200
+
+
+def test_the_routes_take_their_limits_from_the_settings_dependency(model_path, engine):
+    app = create_app(settings(model_path), engine.model)
+    small = settings(model_path).model_copy(update={"max_pixels": 128 * 128})
+    app.dependency_overrides[get_settings] = lambda: small
+    with TestClient(app) as http:
+        assert http.get("/model").json()["limits"]["max_pixels"] == 128 * 128
+        assert_error_shape(post(http, frame_files()), 413, "too_large")
+
+
+# -- the process --------------------------------------------------------------------------
 
 
 def test_sdc_serve_refuses_a_missing_model_with_one_clear_line(tmp_path):
@@ -397,6 +527,7 @@ def test_the_service_imports_no_torch():
     code = (
         "import sys, sdcnet.service.cli\n"
         "heavy = {'torch', 'onnx'} & {m.split('.')[0] for m in sys.modules}\n"
+        "heavy |= {m for m in sys.modules if m.startswith(('sdcnet.training', 'sdcnet.export'))}\n"
         "assert not heavy, heavy\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

@@ -4,6 +4,7 @@ import csv
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -11,8 +12,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from sdcnet.training.checkpoint import load_checkpoint
+from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.cli import main as train_main
+from sdcnet.training.model.sdcnet import VARIANTS, SDCNet
 
 
 @pytest.fixture(scope="module")
@@ -35,10 +37,21 @@ def run(tiny_dataset, tmp_path_factory):
     return out
 
 
+def unchanged(theirs: dict, ours: dict, prefix: str) -> list[bool]:
+    """Whether each weight under ``prefix`` is the same in both state dicts; never empty."""
+    same = [torch.equal(theirs[k], ours[k]) for k in theirs if k.startswith(prefix)]
+    assert same, f"no weights under {prefix!r}"
+    return same
+
+
 def test_fit_runs_both_stages_and_keeps_its_records(run):
     rows = list(csv.DictReader((run / "log.csv").open()))
     assert [(r["stage"], r["epoch"]) for r in rows] == [("1", "1"), ("1", "2"), ("2", "1")]
-    assert all(r[k] for r in rows for k in ("IOU", "MATE", "train_loss"))
+    for row in rows:
+        assert float(row["train_loss"]) > 0 and 0 <= float(row["IOU"]) <= 1
+    # stage 1 of a fresh run validates the mask alone; stage 2 all six metrics
+    assert all(math.isnan(float(row["MATE"])) for row in rows[:2])
+    assert 0 < float(rows[2]["MATE"]) <= 10  # truncated at alpha = 10 m
     assert (run / "learning_curves.png").stat().st_size > 1000
     _, state = load_checkpoint(run / "best.pt")
     assert state["train_config"]["variant"] == "sdcnet"
@@ -46,7 +59,8 @@ def test_fit_runs_both_stages_and_keeps_its_records(run):
     assert "torch" in state["hardware"]
 
 
-def test_fit_resumes_instead_of_starting_over(run, tiny_dataset):
+def test_fit_resumes_instead_of_starting_over(run, tiny_dataset, tmp_path):
+    run = shutil.copytree(run, tmp_path / "run")  # the module's run stays as it was made
     before = (run / "log.csv").read_text()
     assert (
         train_main(
@@ -96,9 +110,13 @@ def test_evaluate_prints_the_table_with_the_floor_and_writes_the_card(
     )
     out = capsys.readouterr().out
     assert "| classical fill |" in out and "| sdcnet |" in out
+    assert "| MAE m (fill) | 0-3px m |" in out  # the depth table beside the paper's
     results = json.loads(report.read_text())["results"]
     floor = results["classical fill"]  # 256 px frames: denser returns than the kernels expect
     assert 0.2 < floor["IOU"] <= 1.0 and floor["MAEI"] < 1.0
+    assert floor["MAE"] == pytest.approx(floor["fill_MAE"])  # the fill on its own pixels
+    assert 0 < floor["normal_mean_deg"] < 90 and 0 <= floor["normal_within_11.25"] <= 1
+    assert results["sdcnet"]["specks"] >= 0
     card = tmp_path / "card.md"
     assert (
         train_main(
@@ -127,8 +145,8 @@ def test_init_weights_fine_tunes_the_segmentation_alone(run, tiny_dataset, tmp_p
     tuned, state = load_checkpoint(out / "best_stage1.pt")
     assert state["train_config"]["init_weights"] == str(run / "best.pt")
     theirs, ours = source.state_dict(), tuned.state_dict()
-    assert all(torch.equal(theirs[k], ours[k]) for k in theirs if k.startswith("fdcnet."))
-    assert not all(torch.equal(theirs[k], ours[k]) for k in theirs if k.startswith("fsnet."))
+    assert all(unchanged(theirs, ours, "fdcnet."))
+    assert not all(unchanged(theirs, ours, "fsnet."))
     _, source_state = load_checkpoint(run / "best.pt")
     assert state["parent"]["train_config"] == source_state["train_config"]
     epochs = [
@@ -181,9 +199,58 @@ def test_evaluate_appends_rows_made_on_the_same_frames(run, tiny_dataset, tmp_pa
     assert list(json.loads(report.read_text())["results"]) == list(rows), "left untouched"
 
 
+def one_line(err: str) -> str:
+    """The one line a user error prints on stderr (never a traceback)."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
 def test_bad_arguments_give_clear_errors(tmp_path, capsys):
     assert train_main(["fit", "--data", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
-    assert "not an sdcnet dataset" in capsys.readouterr().err
+    assert "not an sdcnet dataset" in one_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("flag", ["--init-weights", "--init-segmentation"])
+def test_a_bad_checkpoint_to_start_from_is_one_line(flag, tiny_dataset, tmp_path, capsys):
+    fit = ["fit", "--data", str(tiny_dataset), "--out", str(tmp_path / "r"), "--preset", "smoke"]
+    (tmp_path / "garbage.pt").write_bytes(b"not a checkpoint")
+    assert train_main([*fit, flag, str(tmp_path / "garbage.pt")]) == 2
+    assert one_line(capsys.readouterr().err).startswith(
+        f"sdc-train: error: cannot read checkpoint {tmp_path / 'garbage.pt'}"
+    )
+    assert train_main([*fit, flag, str(tmp_path / "absent.pt")]) == 2
+    assert one_line(capsys.readouterr().err) == (
+        f"sdc-train: error: checkpoint not found: {tmp_path / 'absent.pt'}"
+    )
+    assert train_main(["--debug", *fit, flag, str(tmp_path / "garbage.pt")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and "cannot read checkpoint" in err
+
+
+def test_init_segmentation_from_a_checkpoint_without_fsnet_is_refused(
+    tiny_dataset, tmp_path, capsys
+):
+    save_checkpoint(tmp_path / "baseline.pt", SDCNet(VARIANTS["baseline"]))
+    fit = ["fit", "--data", str(tiny_dataset), "--out", str(tmp_path / "r"), "--preset", "smoke"]
+    assert train_main([*fit, "--init-segmentation", str(tmp_path / "baseline.pt")]) == 2
+    assert "holds no FSNet weights" in one_line(capsys.readouterr().err)
+
+
+def test_fsnet_epochs_0_needs_a_trained_segmentation(run, tiny_dataset, tmp_path, capsys):
+    fit = ["fit", "--data", str(tiny_dataset), "--preset", "smoke", "--fsnet-epochs", "0"]
+    assert train_main([*fit, "--out", str(tmp_path / "fresh")]) == 2
+    assert "--fsnet-epochs 0 on a fresh run" in one_line(capsys.readouterr().err)
+    # from trained weights, it fine-tunes the depth networks alone
+    tuned = tmp_path / "depth-only"
+    assert train_main([*fit, "--out", str(tuned), "--init-weights", str(run / "best.pt")]) == 0
+    rows = list(csv.DictReader((tuned / "log.csv").open()))
+    assert [(r["stage"], r["epoch"]) for r in rows] == [("2", "1")]
+    source, _ = load_checkpoint(run / "best.pt")
+    model, _ = load_checkpoint(tuned / "best.pt")
+    theirs, ours = source.state_dict(), model.state_dict()
+    assert all(unchanged(theirs, ours, "fsnet."))
+    assert not all(unchanged(theirs, ours, "fdcnet."))
 
 
 def test_fit_runs_unchanged_under_torchrun(tiny_dataset, tmp_path):

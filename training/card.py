@@ -9,17 +9,21 @@ from __future__ import annotations
 
 import json
 
-from sdcnet.metrics import markdown_table
+from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.model.sdcnet import SDCNet
 
 
 def lineage(state: dict) -> list[dict]:
     """The runs that made a checkpoint, oldest first: its ``parent`` chain (fine-tuning with
-    ``--init-weights``), then itself."""
+    ``--init-weights``), then itself; a run that started stage 2 from another checkpoint's
+    FSNet (``--init-segmentation``) comes after that checkpoint's own runs."""
     runs = [state]
-    while "parent" in runs[0]:
-        runs.insert(0, runs[0]["parent"])
-    return runs
+    while True:
+        first = runs[0]
+        parent = first.get("parent") or first.get("segmentation_parent")
+        if parent is None:
+            return runs
+        runs.insert(0, parent)
 
 
 def _run_line(run: dict) -> str:
@@ -81,7 +85,7 @@ def model_card(
         f"{data.get('models')} models x {data.get('views')} views; models per split "
         f"{data.get('split_models')}). Test models are never seen in training.",
         f"- Training: {len(runs)} run(s), each starting from the weights the one before kept "
-        f"(`--init-weights`), {minutes:.0f} min in all:",
+        f"(`--init-weights`, or its FSNet with `--init-segmentation`), {minutes:.0f} min in all:",
         *(f"  {i + 1}. {_run_line(run)}." for i, run in enumerate(runs)),
         "- Optimiser: Adam, cosine decay per stage; stage 1 BCE on the foreground (eq. 6), stage 2",
         "  L1 on predicted ∩ true foreground (eq. 7) with FSNet frozen. Kept: the best epoch by",
@@ -100,6 +104,15 @@ def model_card(
             markdown_table(report["results"]),
             "",
         ]
+        if any("MAE" in m for m in report["results"].values()):
+            lines += [
+                "Depth on the pixels each method shares with the classical fill (the fill's own "
+                "error in brackets), by distance to the nearest LIDAR return; normals on the "
+                "interior of true ∩ predicted foreground; false specks per image:",
+                "",
+                depth_table(report["results"]),
+                "",
+            ]
         undefined = {k: v for k, v in report.get("undefined", {}).items() if any(v.values())}
         if undefined:
             lines += [f"Images left out of a mean for an empty set: {json.dumps(undefined)}", ""]

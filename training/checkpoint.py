@@ -1,7 +1,14 @@
-"""Checkpoints: weights, architecture, provenance and the trainer's state, in one file."""
+"""Checkpoints: weights, architecture, provenance and the trainer's state, in one file.
+
+``read_checkpoint`` is the one reader: every checkpoint the project opens (``--checkpoint``,
+``--init-weights``, ``--init-segmentation``, a run's own ``last.pt``) goes through it, so a
+missing, corrupt or foreign file is one clear ``ValueError`` / ``FileNotFoundError``.
+"""
 
 from __future__ import annotations
 
+import pickle
+import zipfile
 from pathlib import Path
 
 import torch
@@ -17,19 +24,52 @@ def save_checkpoint(path: Path, model: SDCNet, **extra) -> None:
     tmp.replace(path)
 
 
-def load_checkpoint(
-    path: str | Path, map_location: str | torch.device = "cpu"
-) -> tuple[SDCNet, dict]:
-    """The model (eval mode) and the whole checkpoint dict. Clear errors for bad files."""
+def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict:
+    """The checkpoint dict (weights never unpickled as code: ``weights_only``), with its
+    ``model`` weights and a ``model_config`` that parses. Clear errors for bad files."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
+    if not zipfile.is_zipfile(path):
+        raise ValueError(
+            f"cannot read checkpoint {path}: not a PyTorch checkpoint (torch.save writes a zip "
+            "archive), or a truncated one"
+        )
     try:
         state = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:
-        raise ValueError(f"cannot read checkpoint {path}: {exc}") from exc
+    except pickle.UnpicklingError as exc:
+        raise ValueError(
+            f"cannot read checkpoint {path}: it holds Python objects besides tensors and plain "
+            "data, which are never unpickled"
+        ) from exc
+    except Exception as exc:  # torch raises zip and runtime errors of many kinds
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        raise ValueError(
+            f"cannot read checkpoint {path}: {type(exc).__name__}: {first_line}"
+        ) from exc
     if not isinstance(state, dict) or "model" not in state or "model_config" not in state:
         raise ValueError(f"{path} is not an sdcnet checkpoint")
+    try:
+        ModelConfig.from_dict(state["model_config"])
+    except (TypeError, ValueError, KeyError, AttributeError) as exc:
+        raise ValueError(f"{path} holds an architecture this version cannot build: {exc}") from exc
+    return state
+
+
+def load_weights(model: SDCNet, weights: dict, path: str | Path) -> None:
+    """``model.load_state_dict(weights)``, a mismatch (weights of another architecture) being
+    a ``ValueError`` that names ``path``."""
+    try:
+        model.load_state_dict(weights)
+    except RuntimeError as exc:
+        raise ValueError(f"the weights in {path} do not fit this architecture: {exc}") from exc
+
+
+def load_checkpoint(
+    path: str | Path, map_location: str | torch.device = "cpu"
+) -> tuple[SDCNet, dict]:
+    """The model (eval mode) and the whole checkpoint dict (``read_checkpoint``)."""
+    state = read_checkpoint(path, map_location)
     model = SDCNet(ModelConfig.from_dict(state["model_config"]))
-    model.load_state_dict(state["model"])
+    load_weights(model, state["model"], path)
     return model.eval(), state

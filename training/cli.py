@@ -11,9 +11,10 @@ from pathlib import Path
 
 import cv2
 
-from sdcnet.dataset_format import SampleStore, evenly_spread
+from sdcnet.cli import add_debug_flag, run_command
+from sdcnet.dataset_format import SampleStore
 from sdcnet.meshes import read_mesh_folder
-from sdcnet.metrics import markdown_table
+from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
@@ -62,7 +63,8 @@ def _methods(args: argparse.Namespace) -> dict[str, tuple]:
         onnx_model = OnnxModel(args.onnx)
         methods[f"onnx:{Path(args.onnx).name}"] = (onnx_model.run, onnx_model.stride)
     if args.floor:
-        methods["classical fill"] = (torch_model_fn(ClassicalFill()), 64)
+        fill = ClassicalFill()
+        methods["classical fill"] = (torch_model_fn(fill), fill.stride)
     if not methods:
         raise ValueError("nothing to evaluate: give --checkpoint, --onnx or --floor")
     return methods
@@ -99,11 +101,13 @@ def cmd_real(args: argparse.Namespace) -> int:
         "",
         markdown_table(overall),
         "",
+        depth_table(overall),
+        "",
     ]
     first = next(iter(per_method))
     for name in sorted(k for k in per_method[first] if k != "all"):
         rows = {method: tables[name].mean() for method, tables in per_method.items()}
-        lines += [f"### {name}", "", markdown_table(rows), ""]
+        lines += [f"### {name}", "", markdown_table(rows), "", depth_table(rows), ""]
     (out / "real_spacecraft.md").write_text("\n".join(lines))
     (out / "real_spacecraft.json").write_text(
         json.dumps(
@@ -125,11 +129,9 @@ def cmd_real(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     store = SampleStore(args.data)
-    records = store.split(args.split)
+    records = store.split(args.split, args.limit)
     if not records:
         raise ValueError(f"split {args.split!r} is empty in {args.data}")
-    if args.limit:
-        records = evenly_spread(records, args.limit)
     methods = _methods(args)
     results, counts, undefined = {}, {}, {}
     for name, (fn, stride) in methods.items():
@@ -137,7 +139,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         results[name], counts[name], undefined[name] = table.mean(), len(table), table.undefined()
         if args.segmentation_only:
             results[name] = mask_metrics_only(results[name])
-    text = markdown_table(results, counts)
+    text = markdown_table(results, counts) + "\n\n" + depth_table(results)
     print(f"{args.split} split of {args.data}: {len(records)} images, mean over images\n")
     print(text)
     for name, u in undefined.items():
@@ -179,8 +181,13 @@ def appended(path: Path, report: dict) -> dict:
     return merged
 
 
+#: What a user's mistake raises (a missing or bad file, a bad value): one line, exit 2.
+USER_ERRORS = {OSError: 2, ValueError: 2}
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sdc-train", description=__doc__)
+    add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
     f = sub.add_parser("fit", help="two-stage training; resumes from OUT/last.pt")
     f.add_argument("--data", required=True, help="dataset directory (sdc-data generate)")
@@ -196,6 +203,8 @@ def parser() -> argparse.ArgumentParser:
         ("tile", int),
         ("lr", float),
         ("weight_decay", float),
+        ("gradient_loss", float),
+        ("iou_loss", float),
         ("samples_per_epoch", int),
         ("val_samples", int),
         ("workers", int),
@@ -300,9 +309,10 @@ def cmd_pose(args: argparse.Namespace) -> int:
     from sdcnet.training import pose_eval
 
     onnx = OnnxModel(args.onnx, threads=args.threads)
+    fill = ClassicalFill()
     methods = {
         "completed": (onnx.run, onnx.stride),
-        "classical fill": (torch_model_fn(ClassicalFill()), 64),
+        "classical fill": (torch_model_fn(fill), fill.stride),
     }
     entries = read_mesh_folder(args.meshes)
     real_config = GenerateConfig(models=0, views=args.views, seed=args.seed, meshes=entries)
@@ -404,11 +414,7 @@ def cmd_card(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"sdc-train: error: {exc}", file=sys.stderr)
-        return 2
+    return run_command("sdc-train", lambda: args.func(args), USER_ERRORS, args.debug)
 
 
 if __name__ == "__main__":

@@ -47,10 +47,11 @@ class TileDataset(Dataset):
         self,
         store: SampleStore,
         records: list[dict],
+        *,
+        stride: int,
         tile: int | None = 512,
         augment: bool = False,
         seed: int = 0,
-        stride: int = 64,
     ):
         self.store, self.records = store, records
         self.tile, self.augment, self.seed, self.stride = tile, augment, seed, stride

@@ -6,13 +6,16 @@ the service does: crop to the LIDAR-bounded region, infer, paste back.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 from torch.nn import functional as F
 from tqdm import tqdm
 
-from sdcnet.dataset_format import SampleStore
-from sdcnet.metrics import MASK_NAMES, MetricTable, frame_metrics
+from sdcnet.camera import Intrinsics
+from sdcnet.dataset_format import Sample, SampleStore
+from sdcnet.metrics import MASK_NAMES, MetricTable, frame_report
 from sdcnet.pipeline import ModelFn, complete
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
 from sdcnet.training.model.sdcnet import SDCNet
@@ -45,8 +48,8 @@ def torch_segmentation_fn(model: SDCNet, device: torch.device | str = "cpu") -> 
 
 def mask_metrics_only(means: dict[str, float]) -> dict[str, float]:
     """``means`` of a ``torch_segmentation_fn`` run with its depth metrics set to NaN: it
-    regressed no depth, so only IOU and IOI mean anything."""
-    return {k: v if k in MASK_NAMES else float("nan") for k, v in means.items()}
+    regressed no depth, so only the mask's (IOU, IOI, specks) mean anything."""
+    return {k: v if k in (*MASK_NAMES, "specks") else float("nan") for k, v in means.items()}
 
 
 class ClassicalFill(torch.nn.Module):
@@ -58,6 +61,7 @@ class ClassicalFill(torch.nn.Module):
     def __init__(self, factor: int = 4):
         super().__init__()
         self.factor = factor
+        self.stride = factor  # crops need only be whole working pixels
         self.prefill = MorphologicalPrefill()
 
     def forward(
@@ -71,22 +75,41 @@ class ClassicalFill(torch.nn.Module):
         return depth, (depth > 0).to(depth.dtype)
 
 
+@functools.cache
+def classical_fill() -> tuple[ModelFn, int]:
+    """The classical fill as a pipeline model, and its stride: the reference every depth
+    metric beyond the paper's compares against on the same frame."""
+    fill = ClassicalFill()
+    return torch_model_fn(fill), fill.stride
+
+
+def score_frame(model_fn: ModelFn, sample: Sample, stride: int) -> dict[str, float]:
+    """Every metric of ``sdcnet.metrics.frame_report`` for one frame, the classical fill of
+    the same frame as the reference."""
+    result = complete(model_fn, sample.gray, sample.sparse, stride=stride)
+    fill_fn, fill_stride = classical_fill()
+    fill = complete(fill_fn, sample.gray, sample.sparse, stride=fill_stride)
+    return frame_report(
+        result.depth,
+        result.mask,
+        fill.depth,
+        fill.mask,
+        sample.depth,
+        sample.sparse,
+        Intrinsics(**sample.meta["intrinsics"]),
+    )
+
+
 def evaluate_records(
     model_fn: ModelFn,
     store: SampleStore,
     records: list[dict],
-    stride: int = 64,
+    stride: int,
     progress: bool = True,
     desc: str = "evaluate",
 ) -> MetricTable:
-    """Per-image metrics of ``model_fn`` over ``records`` of ``store``."""
+    """Per-image metrics of ``model_fn`` over ``records`` of ``store`` (``score_frame``)."""
     table = MetricTable()
     for record in tqdm(records, desc=desc, unit="img", disable=not progress, leave=False):
-        sample = store.load(record)
-        result = complete(model_fn, sample.gray, sample.sparse, stride=stride)
-        table.add(frame_metrics(result.depth, result.mask, sample.depth))
+        table.add(score_frame(model_fn, store.load(record), stride))
     return table
-
-
-def stride_of(model: torch.nn.Module) -> int:
-    return model.config.stride if isinstance(model, SDCNet) else 64

@@ -18,6 +18,7 @@ from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import MetricTable, frame_metrics
 from sdcnet.pipeline import ModelFn, complete
 from sdcnet.pointcloud import back_project
+from sdcnet.training.evaluate import score_frame
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,
@@ -35,9 +36,7 @@ def evaluate_per_model(
     """Metric tables per spacecraft name, plus 'all'."""
     tables: dict[str, MetricTable] = defaultdict(MetricTable)
     for record in records:
-        sample = store.load(record)
-        result = complete(model_fn, sample.gray, sample.sparse, stride=stride)
-        metrics = frame_metrics(result.depth, result.mask, sample.depth)
+        metrics = score_frame(model_fn, store.load(record), stride)
         tables[record["model_name"]].add(metrics)
         tables["all"].add(metrics)
     return dict(tables)

@@ -15,7 +15,7 @@ import platform
 import shlex
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
 
@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.metrics import NAMES
-from sdcnet.training.checkpoint import save_checkpoint
+from sdcnet.training.checkpoint import load_weights, read_checkpoint, save_checkpoint
 from sdcnet.training.dataset import TileDataset
 from sdcnet.training.evaluate import (
     evaluate_records,
@@ -36,8 +36,14 @@ from sdcnet.training.evaluate import (
     torch_model_fn,
     torch_segmentation_fn,
 )
-from sdcnet.training.losses import dense_depth_loss, foreground_depth_loss, segmentation_loss
-from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet
+from sdcnet.training.losses import (
+    dense_depth_loss,
+    depth_gradient_loss,
+    foreground_depth_loss,
+    segmentation_loss,
+    soft_iou_loss,
+)
+from sdcnet.training.model.sdcnet import ModelConfig, SDCNet, build_model
 
 
 class Segmenter(torch.nn.Module):
@@ -66,6 +72,8 @@ class TrainConfig:
     tile: int = 512
     lr: float = 1e-3
     weight_decay: float = 1e-3
+    gradient_loss: float = 1.0  # weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)
+    iou_loss: float = 0.0  # weight of a soft-IOU term beside eq. 6's BCE (stage 1)
     samples_per_epoch: int | None = None  # None: the whole train split every epoch
     val_samples: int | None = None  # None: the whole val split
     workers: int = 2
@@ -75,7 +83,7 @@ class TrainConfig:
     command: str = field(default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]))
 
 
-PROVENANCE = ("hardware", "train_config", "dataset", "history", "parent")
+PROVENANCE = ("hardware", "train_config", "dataset", "history", "parent", "segmentation_parent")
 
 PRESETS: dict[str, dict] = {
     # The paper's recipe (sec. V-A), for a GPU.
@@ -156,16 +164,11 @@ class Trainer:
         self.val_records = self.store.split("val") or train[:2]
         if config.val_samples:
             self.val_records = evenly_spread(self.val_records, config.val_samples)
-        variant = VARIANTS.get(config.variant)
-        if variant is None:
-            raise ValueError(
-                f"unknown variant {config.variant!r}; choose one of {sorted(VARIANTS)}"
-            )
-        self.model = SDCNet(replace(variant, fsnet_inputs=config.fsnet_inputs)).to(self.device)
+        self.model = build_model(config.variant, fsnet_inputs=config.fsnet_inputs).to(self.device)
         self.train_set = TileDataset(
             self.store,
             train,
-            config.tile,
+            tile=config.tile,
             augment=True,
             seed=config.seed,
             stride=self.model.config.stride,
@@ -193,6 +196,9 @@ class Trainer:
         if self.config.init_weights:
             state = self._init_checkpoint
             provenance["parent"] = {k: state[k] for k in PROVENANCE if k in state}
+        if self.config.init_segmentation and self.model.fsnet is not None:
+            state = self._segmentation_checkpoint
+            provenance["segmentation_parent"] = {k: state[k] for k in PROVENANCE if k in state}
         return provenance
 
     def _save(self, name: str, optimizer, scheduler) -> None:
@@ -264,11 +270,20 @@ class Trainer:
 
     def _loss(self, stage: int, batch: dict[str, torch.Tensor], net) -> torch.Tensor:
         if stage == 1:  # net is a Segmenter
-            return segmentation_loss(net(batch["gray"], batch["sparse"]), batch["depth"])
+            prob = net(batch["gray"], batch["sparse"])
+            loss = segmentation_loss(prob, batch["depth"])
+            if self.config.iou_loss:
+                loss = loss + self.config.iou_loss * soft_iou_loss(prob, batch["depth"])
+            return loss
         depth, prob = net(batch["gray"], batch["sparse"])
         if self.model.fsnet is None:
             return dense_depth_loss(depth, batch["depth"])
-        return foreground_depth_loss(depth, prob, batch["depth"])
+        loss = foreground_depth_loss(depth, prob, batch["depth"])
+        if self.config.gradient_loss:
+            loss = loss + self.config.gradient_loss * depth_gradient_loss(
+                depth, prob, batch["depth"]
+            )
+        return loss
 
     def _train_epoch(self, stage: int, epoch: int, optimizer, net) -> float:
         self.model.train()
@@ -311,27 +326,36 @@ class Trainer:
         path = self.out / "last.pt"
         if not path.exists():
             return None, None
-        state = torch.load(path, map_location=self.device, weights_only=True)
-        self.model.load_state_dict(state["model"])
+        state = read_checkpoint(path, self.device)
+        if not {"state", "history", "optimizer", "scheduler"} <= set(state):
+            raise ValueError(f"{path} is not a run's last.pt (no trainer state): use --restart")
+        load_weights(self.model, state["model"], path)
         self.state, self.history = state["state"], state["history"]
         return state["optimizer"], state["scheduler"]
 
+    @cached_property
+    def _segmentation_checkpoint(self) -> dict:
+        """The checkpoint whose FSNet stage 2 starts from (any depth design), read once for its
+        weights and its provenance."""
+        return read_checkpoint(self.config.init_segmentation, self.device)
+
     def _init_segmentation(self) -> None:
-        state = torch.load(
-            self.config.init_segmentation, map_location=self.device, weights_only=True
-        )
+        path = self.config.init_segmentation
+        theirs = self._segmentation_checkpoint["model"]
         own = self.model.state_dict()
-        seg = {k: v for k, v in state["model"].items() if k.startswith("fsnet.") and k in own}
-        self.model.load_state_dict({**own, **seg})
+        seg = {k: v for k, v in theirs.items() if k.startswith(("fsnet.", "refiner.")) and k in own}
+        if not seg:
+            raise ValueError(f"{path} holds no FSNet weights to reuse (--init-segmentation)")
+        load_weights(self.model, {**own, **seg}, path)
         self.state["stage"] = 2
 
     @cached_property
     def _init_checkpoint(self) -> dict:
         """The checkpoint fine-tuning starts from (same variant, else a clear error), read once
         for its weights and its provenance."""
-        state = torch.load(self.config.init_weights, map_location=self.device, weights_only=True)
-        theirs = state.get("model_config")
-        if theirs is None or ModelConfig.from_dict(theirs) != self.model.config:
+        state = read_checkpoint(self.config.init_weights, self.device)
+        theirs = state["model_config"]
+        if ModelConfig.from_dict(theirs) != self.model.config:
             raise ValueError(
                 f"{self.config.init_weights} holds another architecture "
                 f"({theirs}); --init-weights needs the same variant"
@@ -340,7 +364,16 @@ class Trainer:
 
     def _init_weights(self) -> None:
         """Start from a whole trained model of the same variant (fine-tuning)."""
-        self.model.load_state_dict(self._init_checkpoint["model"])
+        load_weights(self.model, self._init_checkpoint["model"], self.config.init_weights)
+
+    def _check_segmentation_is_trained(self) -> None:
+        """Stage 2 trains on FSNet's mask: a fresh run must train FSNet or be given one."""
+        if self.state["stage"] == 1 and self.config.fsnet_epochs == 0:
+            raise ValueError(
+                "--fsnet-epochs 0 on a fresh run would leave FSNet untrained for stage 2: "
+                "train it (--fsnet-epochs N) or start from trained weights (--init-weights, "
+                "--init-segmentation)"
+            )
 
     def fit(self, resume: bool = True) -> Path:
         """Run (or resume) both stages; the best checkpoint: best.pt, or best_stage1.pt when
@@ -354,6 +387,8 @@ class Trainer:
             and self.model.fsnet is not None
         ):
             self._init_segmentation()
+        if optimizer_state is None and not self.config.init_weights:
+            self._check_segmentation_is_trained()
         while self.state["stage"] <= 2:
             stage = self.state["stage"]
             optimizer, scheduler, epochs = self._stage_setup(stage)
@@ -392,11 +427,9 @@ class Trainer:
                 self._save("last.pt", optimizer, scheduler)
                 if self.world > 1:
                     dist.barrier()
-            if stage == 1:  # stage 2 starts from the best segmentation
-                best = torch.load(
-                    self.out / "best_stage1.pt", map_location=self.device, weights_only=True
-                )
-                self.model.load_state_dict(best["model"])
+            if stage == 1 and epochs > 0:  # stage 2 starts from the best segmentation
+                best = self.out / "best_stage1.pt"
+                load_weights(self.model, read_checkpoint(best, self.device)["model"], best)
             self.state = {"stage": stage + 1, "epoch": 0, "best": None}
         if self.is_main:
             (self.out / "train_config.json").write_text(

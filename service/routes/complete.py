@@ -9,10 +9,11 @@ from fastapi.responses import Response
 from pydantic import WithJsonSchema
 from starlette.concurrency import run_in_threadpool
 
+from sdcnet.service.decode import CompletionRequest
 from sdcnet.service.deps import EngineDep, SettingsDep
 from sdcnet.service.encode import MEDIA_TYPES
 from sdcnet.service.errors import ERROR_RESPONSES, ApiError
-from sdcnet.service.inference import CompletionRequest, answer
+from sdcnet.service.inference import SERVER_TIMING_HEADER, answer
 from sdcnet.service.schemas import CompletionResponse, ResponseFormat
 
 router = APIRouter(tags=["inference"])
@@ -55,6 +56,16 @@ def optional_number(description: str, **bounds: float) -> Any:
     ]
 
 
+def optional_file(description: str) -> Any:
+    """The type of an optional file field: the OpenAPI schema says a file (not "file or
+    null": a form cannot send null), as ``optional_number`` does for numbers."""
+    return Annotated[
+        UploadFile | None,
+        File(description=description),
+        WithJsonSchema({"type": "string", "format": "binary", "description": description}),
+    ]
+
+
 _DEFAULT_K = "default: the model's, scaled to the image size"
 FocalLength = optional_number(f"pixels; {_DEFAULT_K}", gt=0)
 PrincipalPoint = optional_number(f"pixels; {_DEFAULT_K}")
@@ -65,13 +76,29 @@ GrayFile = Annotated[
     UploadFile,
     File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
 ]
-SparseFile = Annotated[
-    UploadFile,
-    File(
-        description=".npy of float32/float64 metres (0 = no return), or a 16-bit PNG "
-        "with depth_scale"
-    ),
-]
+SparseFile = optional_file(
+    "the LIDAR returns as a dense map: .npy of float32/float64 metres (H x W, 0 = no "
+    "return), or a 16-bit PNG with depth_scale. Send this or returns"
+)
+ReturnsFile = optional_file(
+    "the LIDAR returns as a list, one per row: row, column (whole pixel indices) and Z "
+    "(metres > 0); a .npy of (N, 3) float32/float64 (exact, 12 bytes a return) or a CSV "
+    "text file with the header row,col,z_m. Where several fall on one pixel the nearest "
+    "wins. Send this or sparse"
+)
+
+
+async def form_request(
+    gray: UploadFile, sparse: UploadFile | None, returns: UploadFile | None, **fields: Any
+) -> CompletionRequest:
+    """The uploaded files' bytes and the form's other ``fields``, as ``decode_form`` takes
+    them (``POST /complete`` and ``POST /pose``)."""
+    return CompletionRequest(
+        gray=await gray.read(),
+        sparse=None if sparse is None else await sparse.read(),
+        returns=None if returns is None else await returns.read(),
+        **fields,
+    )
 
 
 @router.post(
@@ -82,13 +109,7 @@ SparseFile = Annotated[
             "description": "format=json: this document; format=npz: a zip of depth.npy, "
             "mask.npy, points.npy and meta.json; format=ply: the point cloud as binary PLY",
             "content": {"application/octet-stream": {}},
-            "headers": {
-                "Server-Timing": {
-                    "description": "milliseconds per phase: decode, queue, inference, encode",
-                    "required": True,
-                    "schema": {"type": "string"},
-                }
-            },
+            "headers": SERVER_TIMING_HEADER,
         },
         **ERROR_RESPONSES,
     },
@@ -99,7 +120,8 @@ async def complete(
     engine: EngineDep,
     settings: SettingsDep,
     gray: GrayFile,
-    sparse: SparseFile,
+    sparse: SparseFile = None,
+    returns: ReturnsFile = None,
     depth_scale: DepthScale = None,
     fx: FocalLength = None,
     fy: FocalLength = None,
@@ -114,11 +136,14 @@ async def complete(
 ) -> Response:
     """Complete one frame: dense depth (metres, 0 off the mask), mask and point cloud.
 
-    Intrinsics (pixels) not given are the model's, scaled to the image size.
+    The LIDAR returns come as a dense map (`sparse`) or as a list (`returns`: a few hundred
+    returns in a few kilobytes instead of a 4 MiB map for a 1024 x 1024 frame; the answers
+    are identical). Intrinsics (pixels) not given are the model's, scaled to the image size.
     """
-    req = CompletionRequest(
-        gray=await gray.read(),
-        sparse=await sparse.read(),
+    req = await form_request(
+        gray,
+        sparse,
+        returns,
         depth_scale=depth_scale,
         fx=fx,
         fy=fy,

@@ -1,50 +1,73 @@
-"""Model metadata: ``GET /model`` and the Open Inference Protocol's ``GET /v2/models/sdcnet``."""
+"""Model metadata: ``GET /model`` and the Open Inference Protocol's ``GET /v2/models/sdcnet``
+(the tensors ``POST /v2/models/sdcnet/infer`` takes and answers) and ``GET /v2`` (the server)."""
 
 from __future__ import annotations
 
-import json
-
 from fastapi import APIRouter
 
+from sdcnet import __version__
+from sdcnet.service import v2
 from sdcnet.service.deps import MODEL_NAME, EngineDep, SettingsDep, TargetsDep
-from sdcnet.service.schemas import CameraIntrinsics, ModelMetadata, TargetInfo, TensorMetadata
+from sdcnet.service.errors import ERROR_RESPONSES, V2_ERROR_RESPONSES
+from sdcnet.service.schemas import (
+    CameraIntrinsics,
+    ModelMetadata,
+    ServerMetadata,
+    TargetInfo,
+    TensorMetadata,
+)
 
 router = APIRouter(tags=["model"])
-_DATATYPES = {"tensor(float)": "FP32", "tensor(float16)": "FP16", "tensor(double)": "FP64"}
+
+_DESCRIPTIONS = {
+    "gray": "camera image, [H, W]; UINT16 is accepted too",
+    "sparse": "LIDAR returns as a dense map: Z metres, 0 = no return (or give returns)",
+    "returns": "LIDAR returns as a list: row, column (whole pixels), Z metres (or give sparse)",
+    "depth": "camera-frame Z, metres, 0 outside the mask",
+    "mask": "1 = spacecraft",
+    "points": "the mask's pixels back-projected: camera frame (x right, y down, z forward), m",
+}
 
 
-@router.get("/model", response_model=ModelMetadata)
-@router.get(f"/v2/models/{MODEL_NAME}", response_model=ModelMetadata)
+def _tensors(specs: dict) -> list[TensorMetadata]:
+    """Metadata of the protocol's tensors (``sdcnet.service.v2.INPUTS`` / ``OUTPUTS``)."""
+    return [
+        TensorMetadata(
+            name=name,
+            datatype=datatype if isinstance(datatype, str) else datatype[0],
+            shape=list(shape),
+            description=_DESCRIPTIONS[name],
+        )
+        for name, (datatype, shape) in specs.items()
+    ]
+
+
+@router.get("/v2", response_model=ServerMetadata)
+async def server_metadata() -> ServerMetadata:
+    """The server (Open Inference Protocol): name, version and protocol extensions."""
+    return ServerMetadata(name="sdcnet", version=__version__, extensions=["binary_tensor_data"])
+
+
+@router.get("/model", response_model=ModelMetadata, responses={503: ERROR_RESPONSES[503]})
+@router.get(
+    f"/v2/models/{MODEL_NAME}",
+    response_model=ModelMetadata,
+    responses={503: V2_ERROR_RESPONSES[503]},
+)
 async def model_metadata(
     engine: EngineDep, settings: SettingsDep, targets: TargetsDep
 ) -> ModelMetadata:
-    """What the loaded model is: version, tensors, default intrinsics, metrics, limits, and
-    the known targets of ``POST /pose``."""
+    """What the service serves: the v2 inference tensors, the model's version, default
+    intrinsics, metrics, the limits, and the known targets of ``POST /pose``."""
     model = engine.model
     info = model.info
-    described = {
-        **json.loads(info.raw.get("inputs", "{}")),
-        **json.loads(info.raw.get("outputs", "{}")),
-    }
-
-    def tensors(args) -> list[TensorMetadata]:
-        return [
-            TensorMetadata(
-                name=a.name,
-                datatype=_DATATYPES.get(a.type, a.type),
-                shape=[d if isinstance(d, int) else -1 for d in a.shape],
-                description=described.get(a.name, ""),
-            )
-            for a in args
-        ]
-
     K = info.intrinsics
     return ModelMetadata(
         name=MODEL_NAME,
         versions=[info.version],
         platform="onnxruntime_onnx",
-        inputs=tensors(model.session.get_inputs()),
-        outputs=tensors(model.session.get_outputs()),
+        inputs=_tensors(v2.INPUTS),
+        outputs=_tensors(v2.OUTPUTS),
         version=info.version,
         provider=model.provider,
         threads=model.threads,

@@ -12,7 +12,7 @@ from starlette.concurrency import run_in_threadpool
 
 from sdcnet.service.deps import EngineDep, SettingsDep, TargetsDep
 from sdcnet.service.errors import ERROR_RESPONSES
-from sdcnet.service.inference import CompletionRequest
+from sdcnet.service.inference import SERVER_TIMING_HEADER
 from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose, find_target
 from sdcnet.service.pose_schemas import PoseResponse, TargetGeometry
 from sdcnet.service.routes.complete import (
@@ -20,7 +20,9 @@ from sdcnet.service.routes.complete import (
     FocalLength,
     GrayFile,
     PrincipalPoint,
+    ReturnsFile,
     SparseFile,
+    form_request,
     strict_form,
 )
 from sdcnet.service.schemas import ErrorBody
@@ -45,10 +47,8 @@ POSE_ERRORS: dict[int | str, dict] = {
         200: {
             "headers": {
                 "Server-Timing": {
-                    "description": "milliseconds per phase: decode, queue, inference, cloud, "
-                    "registration",
-                    "required": True,
-                    "schema": {"type": "string"},
+                    **SERVER_TIMING_HEADER["Server-Timing"],
+                    "description": "milliseconds per phase: " + ", ".join(POSE_PHASES),
                 }
             },
         },
@@ -62,7 +62,6 @@ async def pose(
     settings: SettingsDep,
     targets: TargetsDep,
     gray: GrayFile,
-    sparse: SparseFile,
     target: Annotated[str, Form(description="a known target's name (GET /model lists them)")],
     init: Annotated[
         str | None,
@@ -71,6 +70,8 @@ async def pose(
             '3} or {"quaternion_wxyz": 4, "t": 3}; without it the pose is found from scratch'
         ),
     ] = None,
+    sparse: SparseFile = None,
+    returns: ReturnsFile = None,
     depth_scale: DepthScale = None,
     fx: FocalLength = None,
     fy: FocalLength = None,
@@ -88,9 +89,10 @@ async def pose(
     poorly. A symmetric target's answer says `ambiguous` and lists the alternatives.
     """
     req = PoseRequest(
-        frame=CompletionRequest(
-            gray=await gray.read(),
-            sparse=await sparse.read(),
+        frame=await form_request(
+            gray,
+            sparse,
+            returns,
             depth_scale=depth_scale,
             fx=fx,
             fy=fy,
@@ -108,7 +110,7 @@ async def pose(
     )
 
 
-#: Surface samples ``GET /targets/{name}`` sends: enough to draw the target, a few tens of kB.
+#: Surface samples ``GET /targets/{name}`` sends, at most: enough to draw the target, ~100 kB.
 DRAWING_POINTS = 4000
 
 
@@ -121,7 +123,7 @@ async def target_geometry(name: str, targets: TargetsDep) -> TargetGeometry:
     """Samples of a known target's surface in its frame (metres), to draw it at a pose."""
     target = find_target(targets, name)
     points = target.model.render_points
-    step = max(1, len(points) // DRAWING_POINTS)
+    step = -(-len(points) // DRAWING_POINTS)  # at most DRAWING_POINTS of them
     return TargetGeometry(
         name=target.name,
         longest_m=target.longest_m,

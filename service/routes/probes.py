@@ -7,12 +7,13 @@ from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
 from sdcnet.service.deps import MODEL_NAME, EngineDep
-from sdcnet.service.errors import ERROR_RESPONSES
+from sdcnet.service.errors import ERROR_RESPONSES, V2_ERROR_RESPONSES
 from sdcnet.service.metrics import CONTENT_TYPE
 from sdcnet.service.schemas import Liveness, Readiness
 
 router = APIRouter(tags=["probes"])
 _NOT_READY: dict[int | str, dict] = {503: ERROR_RESPONSES[503]}
+_V2_NOT_READY: dict[int | str, dict] = {503: V2_ERROR_RESPONSES[503]}
 
 
 @router.get("/health", response_model=Liveness)
@@ -23,11 +24,11 @@ async def live() -> Liveness:
 
 
 @router.get("/ready", response_model=Readiness, responses=_NOT_READY)
-@router.get("/v2/health/ready", response_model=Readiness, responses=_NOT_READY)
+@router.get("/v2/health/ready", response_model=Readiness, responses=_V2_NOT_READY)
 @router.get(
     f"/v2/models/{MODEL_NAME}/ready",
     response_model=Readiness,
-    responses=_NOT_READY,
+    responses=_V2_NOT_READY,
 )
 async def ready(engine: EngineDep) -> Readiness:
     """The model is loaded and requests are served (readiness); 503 otherwise."""

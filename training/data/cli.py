@@ -10,11 +10,15 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.meshes import read_mesh_folder
+from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
 from sdcnet.training.data.preview import preview
+from sdcnet.training.data.scene import SceneConfig
 from sdcnet.training.data.sequence import TRAJECTORIES, SequenceConfig, write_sequences
 from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file
 
@@ -72,6 +76,31 @@ def cmd_generate(args: argparse.Namespace) -> int:
     else:
         counts = {s: len(store.split(s)) for s in sorted({r["split"] for r in store.records})}
         print(f"{len(store)} samples in {args.out} ({counts}) after {elapsed:.0f} s")
+    return 0
+
+
+def cmd_example(args: argparse.Namespace) -> int:
+    """One frame of one mesh at a set distance, as a user would send it: the gray image
+    (``NAME.png``) and the LIDAR returns (``NAME.returns.csv``, ``sdcnet.returns``)."""
+    meshes = {entry.path.stem: entry for entry in read_mesh_folder(args.meshes)}
+    if args.name not in meshes:
+        raise ValueError(f"no mesh called {args.name!r} in {args.meshes}: {sorted(meshes)}")
+    scene = SceneConfig(min_distance_m=args.distance, max_distance_m=args.distance)
+    config = GenerateConfig(
+        models=0, views=1, seed=args.seed, split=(0, 0, 0), scene=scene, meshes=(meshes[args.name],)
+    )
+    sample = make_sample(config, build_model(config, 0), 0, 0, "example")
+    args.out.mkdir(parents=True, exist_ok=True)
+    gray, returns = args.out / f"{args.name}.png", args.out / f"{args.name}.returns.csv"
+    if not cv2.imwrite(str(gray), sample.gray, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
+        raise OSError(f"cannot write {gray}")
+    write_returns_csv(returns, returns_from_dense(sample.sparse))
+    meta = sample.meta
+    print(
+        f"{gray} ({gray.stat().st_size / 1e3:.0f} kB) and {returns} "
+        f"({returns.stat().st_size / 1e3:.1f} kB): {args.name} at {meta['distance_m']:.0f} m, "
+        f"{meta['returns']} LIDAR returns, {meta['foreground_px']} spacecraft px"
+    )
     return 0
 
 
@@ -162,6 +191,7 @@ def cmd_sequence(args: argparse.Namespace) -> int:
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sdc-data", description=__doc__)
+    add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
 
     g = sub.add_parser("generate", help="render a dataset (resumable; shardable across machines)")
@@ -189,6 +219,16 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--mesh-split", default="real", help="split name of the folder's meshes")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)
+
+    e = sub.add_parser(
+        "example", help="one frame of a mesh as a user sends it: NAME.png and NAME.returns.csv"
+    )
+    e.add_argument("--meshes", type=Path, required=True, help="mesh folder (manifest.json)")
+    e.add_argument("--name", required=True, help="the mesh's file name without its suffix")
+    e.add_argument("--distance", type=float, default=120.0, help="metres (default 120)")
+    e.add_argument("--seed", type=int, default=0, help="attitude, sun and noise")
+    e.add_argument("--out", type=Path, default=Path("examples"))
+    e.set_defaults(func=cmd_example)
 
     v = sub.add_parser("preview", help="montage PNG of a few samples")
     v.add_argument("dataset", type=Path)
@@ -226,11 +266,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"sdc-data: error: {exc}", file=sys.stderr)
-        return 2
+    return run_command("sdc-data", lambda: args.func(args), {OSError: 2, ValueError: 2}, args.debug)
 
 
 if __name__ == "__main__":

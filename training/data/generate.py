@@ -19,6 +19,8 @@ from sdcnet.dataset_format import (
     is_complete,
     read_meta,
     sample_id,
+    write_atomically,
+    write_manifest,
     write_sample,
 )
 from sdcnet.meshes import MeshEntry
@@ -176,7 +178,7 @@ def generate(
     text = json.dumps(info, indent=1, sort_keys=True) + "\n"
     if info_path.exists() and info_path.read_text() != text:
         raise ValueError(f"{out} holds a dataset made with other settings; use another --out")
-    info_path.write_text(text)
+    write_atomically(info_path, text)
     splits = model_splits(config)
     n_models = config.models + len(config.meshes)
     tasks = [(config, out, m, v, splits[m]) for m in range(n_models) for v in range(config.views)]
@@ -199,6 +201,5 @@ def generate(
     files = [out / "samples" / f"{sample_id(t[2], t[3])}.npz" for t in tasks]
     if not all(is_complete(f) for f in files):
         return None
-    lines = [json.dumps(read_meta(f), sort_keys=True) for f in files]
-    (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+    write_manifest(out, [read_meta(f) for f in files])
     return SampleStore(out)

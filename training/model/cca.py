@@ -22,7 +22,7 @@ class RegionEmbedding(nn.Module):
     H and W must be multiples of ``grid``.
     """
 
-    def __init__(self, channels: int, grid: int = 4):
+    def __init__(self, *, channels: int, grid: int = 4):
         super().__init__()
         self.grid = grid
         self.score = nn.Conv2d(channels, 1, 1)  # where, inside a region, to look
@@ -43,14 +43,14 @@ class RegionEmbedding(nn.Module):
 class CrossChannelAttention(nn.Module):
     """(f_s, f_g) each (B, C, H, W) -> fused depth features (B, C, H, W)."""
 
-    def __init__(self, channels: int, grid: int = 4, heads: int = 4):
+    def __init__(self, *, channels: int, grid: int = 4, heads: int = 4):
         super().__init__()
         d_k = 3 * grid * grid
         if d_k % heads:
             raise ValueError(f"d_k = {d_k} must split into {heads} heads")
         self.heads, self.d_k = heads, d_k
-        self.embed_s = RegionEmbedding(channels, grid)
-        self.embed_g = RegionEmbedding(channels, grid)
+        self.embed_s = RegionEmbedding(channels=channels, grid=grid)
+        self.embed_g = RegionEmbedding(channels=channels, grid=grid)
         self.norm_s = nn.LayerNorm(d_k)
         self.norm_g = nn.LayerNorm(d_k)
         self.query = nn.Linear(d_k, d_k, bias=False)  # the n matrices W_i^Q side by side

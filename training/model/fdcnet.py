@@ -24,13 +24,17 @@ FUSIONS = ("cca+sa", "cca", "sa", "guided")
 class Fusion(nn.Module):
     """Depth features fused with gray features: (f_s, f_g) (B, C, H, W) -> (B, C, H, W)."""
 
-    def __init__(self, kind: str, channels: int, grid: int, heads: int):
+    def __init__(self, *, kind: str, channels: int, grid: int, heads: int):
         super().__init__()
         if kind not in FUSIONS:
             raise ValueError(f"unknown fusion {kind!r}; choose one of {FUSIONS}")
-        self.cca = CrossChannelAttention(channels, grid, heads) if "cca" in kind else None
+        self.cca = (
+            CrossChannelAttention(channels=channels, grid=grid, heads=heads)
+            if "cca" in kind
+            else None
+        )
         self.sa = SpatialAttention() if "sa" in kind else None
-        self.guided = GuidedConvFusion(channels) if kind == "guided" else None
+        self.guided = GuidedConvFusion(channels=channels) if kind == "guided" else None
 
     def forward(self, f_s: torch.Tensor, f_g: torch.Tensor) -> torch.Tensor:
         if self.guided is not None:
@@ -42,7 +46,7 @@ class Fusion(nn.Module):
 class Encoder(nn.Module):
     """(B, Cin, h, w) -> features at scales 1, 1/2, ..., 1/2^(L-1) with ``widths`` channels."""
 
-    def __init__(self, in_channels: int, widths: tuple[int, ...]):
+    def __init__(self, *, in_channels: int, widths: tuple[int, ...]):
         super().__init__()
         self.stem = nn.Sequential(
             ConvBNReLU(in_channels, widths[0]), ConvBNReLU(widths[0], widths[0])
@@ -61,7 +65,7 @@ class Encoder(nn.Module):
 class DecoderStage(nn.Module):
     """Upsample the coarser features, concatenate the skip, convolve."""
 
-    def __init__(self, coarse: int, skip: int, out: int):
+    def __init__(self, *, coarse: int, skip: int, out: int):
         super().__init__()
         self.conv = ConvBNReLU(coarse + skip, out)
 
@@ -70,23 +74,37 @@ class DecoderStage(nn.Module):
 
 
 class FDCNet(nn.Module):
-    """(gray (B, 1, h, w), depth input (B, Cd, h, w)) -> normalised depth (B, 1, h, w)."""
+    """(gray (B, Cg, h, w), depth input (B, Cd, h, w)) -> normalised depth (B, Cout, h, w).
+
+    Cg = Cout = 1 for a gray image and a depth at the working resolution, or factor^2 for the
+    full-resolution gray image as space-to-depth blocks and sub-pixel depths per working pixel.
+    """
 
     def __init__(
-        self, depth_channels: int, widths: tuple[int, ...], fusion: str, grid: int, heads: int
+        self,
+        *,
+        gray_channels: int = 1,
+        depth_channels: int,
+        out_channels: int = 1,
+        widths: tuple[int, ...],
+        fusion: str,
+        grid: int,
+        heads: int,
     ):
         super().__init__()
-        self.gray_encoder = Encoder(1, widths)
-        self.depth_encoder = Encoder(depth_channels, widths)
+        self.gray_encoder = Encoder(in_channels=gray_channels, widths=widths)
+        self.depth_encoder = Encoder(in_channels=depth_channels, widths=widths)
         scales = range(len(widths) - 2, -1, -1)  # decoder scales, coarse to fine
         self.gray_decoder = nn.ModuleList(
-            DecoderStage(widths[i + 1], widths[i], widths[i]) for i in scales
+            DecoderStage(coarse=widths[i + 1], skip=widths[i], out=widths[i]) for i in scales
         )
         self.depth_decoder = nn.ModuleList(
-            DecoderStage(widths[i + 1], widths[i], widths[i]) for i in scales
+            DecoderStage(coarse=widths[i + 1], skip=widths[i], out=widths[i]) for i in scales
         )
-        self.fusions = nn.ModuleList(Fusion(fusion, widths[i], grid, heads) for i in scales)
-        self.head = nn.Conv2d(widths[0], 1, 1)
+        self.fusions = nn.ModuleList(
+            Fusion(kind=fusion, channels=widths[i], grid=grid, heads=heads) for i in scales
+        )
+        self.head = nn.Conv2d(widths[0], out_channels, 1)
 
     def forward(self, gray: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
         g_skips, s_skips = self.gray_encoder(gray), self.depth_encoder(depth)

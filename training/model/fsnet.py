@@ -19,7 +19,7 @@ from sdcnet.training.model.blocks import ConvBNReLU, upsample_to
 class FSNet(nn.Module):
     """(B, Cin, h, w) -> logits (B, Cout, h, w); h, w multiples of 4."""
 
-    def __init__(self, in_channels: int, out_channels: int = 1):
+    def __init__(self, *, in_channels: int, out_channels: int = 1):
         super().__init__()
         self.enc1 = ConvBNReLU(in_channels, 6)
         self.enc2 = ConvBNReLU(6, 8, stride=2)

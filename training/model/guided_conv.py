@@ -16,7 +16,7 @@ from torch.nn import functional as F
 class GuidedConvFusion(nn.Module):
     """(f_s, f_g) each (B, C, H, W) -> (B, C, H, W)."""
 
-    def __init__(self, channels: int):
+    def __init__(self, *, channels: int):
         super().__init__()
         self.kernels = nn.Conv2d(channels, 9 * channels, 3, padding=1)
         self.mixing = nn.Linear(channels, channels * channels)

@@ -44,7 +44,7 @@ class MorphologicalPrefill(nn.Module):
     grazing surfaces left open, and a blur over valid pixels smooths the steps.
     """
 
-    def __init__(self, dilate=(5, 3), close=(5, 5), holes=(9, 9), blur: int = 3):
+    def __init__(self, *, dilate=(5, 3), close=(5, 5), holes=(9, 9), blur: int = 3):
         super().__init__()
         self.dilate, self.close, self.holes, self.blur = (
             tuple(dilate),

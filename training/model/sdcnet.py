@@ -1,23 +1,27 @@
-"""SDCNet = morphological pre-fill + FSNet + FDCNet, built for a CPU latency budget.
+"""SDCNet = pre-fill + FSNet + FDCNet, built for a CPU latency budget.
 
 Input: gray (B, 1, H, W) in [0, 1] and sparse LIDAR depth (B, 1, H, W) in metres (0 = none),
 any H x W. Output: dense depth (B, 1, H, W) in metres and foreground probability (B, 1, H, W).
 
 To fit ~100 ms per 1024 x 1024 frame on two cores, the depth networks run at a working
 resolution ``factor`` (4) times below the input and FSNet at ``seg_factor`` (2) times below
-(the sparse map is downsampled keeping the nearest return); depth is upsampled bilinearly,
-FSNet sees the full-resolution gray image as space-to-depth blocks and predicts the mask at
-full resolution by depth-to-space. The mask gets the finer grid because it decides most of
-the score: an ideal mask pooled to 1/4 and upsampled keeps IOU 94.7 %, pooled to 1/2 it
-keeps 97.8 % (mean over 198 training frames). Depth is regressed relative to the mean LIDAR
-return of the image (d_ref) in units of ``depth_scale_m``, so the same weights serve 50 m and
-250 m.
+(the sparse map is downsampled keeping the nearest return). Both see the full-resolution gray
+image as space-to-depth blocks and answer at full resolution by depth-to-space, so edges in the
+image reach the mask and the depth at the cost of low-resolution work. The mask gets the finer
+grid because it decides most of the score: an ideal mask pooled to 1/4 and upsampled keeps IOU
+94.7 %, pooled to 1/2 it keeps 97.8 % (mean over 198 training frames).
+
+Depth (``depth_base="plane"``) is a residual on a local plane fitted to the returns around each
+pixel (``plane_fit.py``): what was measured is kept, values between scan lines are interpolated,
+and the network corrects what a plane cannot follow (depth edges, curvature). The first shipped
+model (``depth_base="mean"``) regressed depth relative to the mean LIDAR return of the image on
+the morphological pre-fill, which steps between beam rows.
 Inputs are padded internally to the network's stride and the padding is cut off again.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import torch
 from torch import nn
@@ -25,9 +29,12 @@ from torch.nn import functional as F
 
 from sdcnet.training.model.fdcnet import FDCNet
 from sdcnet.training.model.fsnet import FSNet
+from sdcnet.training.model.mask_refiner import MaskRefiner
+from sdcnet.training.model.plane_fit import PlaneFitPrefill
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
 
 FSNET_INPUTS = ("both", "gray", "sparse")
+DEPTH_BASES = ("plane", "mean")
 
 
 @dataclass(frozen=True)
@@ -42,7 +49,11 @@ class ModelConfig:
     fsnet_inputs: str = "both"  # Table 4: "both", "gray", "sparse"
     grid: int = 4  # CCA regions per side: M = grid^2 regions whatever the input size
     heads: int = 4
-    depth_scale_m: float = 10.0
+    depth_scale_m: float = 10.0  # depth inputs (and "mean" outputs) are in units of this
+    depth_base: str = "plane"  # "plane": residual on a local plane fit; "mean": on the mean return
+    subpixel: bool = True  # FDCNet sees gray blocks and predicts factor^2 sub-pixel residuals
+    residual_scale_m: float = 1.0  # "plane": the residual head's output unit
+    mask_refiner: bool = True  # full-resolution refinement of FSNet's logits on the gray image
 
     @property
     def stride(self) -> int:
@@ -55,13 +66,27 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> ModelConfig:
-        return cls(**{**d, "widths": tuple(d["widths"])})
+        """A config as saved; fields it predates take the values models had before them."""
+        return cls(**{**LEGACY_FIELDS, **d, "widths": tuple(d["widths"])})
 
     def __post_init__(self):
         if self.factor % self.seg_factor:
             raise ValueError(
                 f"factor {self.factor} must be a multiple of seg_factor {self.seg_factor}"
             )
+        if self.fsnet_inputs not in FSNET_INPUTS:
+            raise ValueError(f"fsnet_inputs must be one of {FSNET_INPUTS}")
+        if self.depth_base not in DEPTH_BASES:
+            raise ValueError(f"depth_base must be one of {DEPTH_BASES}")
+
+
+#: What configs saved before a field existed meant by it (the first shipped model's design).
+LEGACY_FIELDS = {
+    "depth_base": "mean",
+    "subpixel": False,
+    "residual_scale_m": 1.0,
+    "mask_refiner": False,
+}
 
 
 VARIANTS: dict[str, ModelConfig] = {
@@ -70,24 +95,51 @@ VARIANTS: dict[str, ModelConfig] = {
     "fsnet": ModelConfig(fusion="guided"),  # baseline + FSNet
     "fsnet+cca": ModelConfig(fusion="cca"),
     "fsnet+sa": ModelConfig(fusion="sa"),
+    # The depth path's ablation: the first shipped design (residual on the mean return, on the
+    # morphological pre-fill, bilinear upsampling), and the plane fit without sub-pixel output.
+    "sdcnet-v1": ModelConfig(depth_base="mean", subpixel=False, mask_refiner=False),
+    "plane": ModelConfig(subpixel=False),
 }
+
+
+def build_model(variant: str = "sdcnet", **overrides) -> SDCNet:
+    """SDCNet of a named variant (``VARIANTS``) with any config fields overridden."""
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r}; choose one of {sorted(VARIANTS)}")
+    return SDCNet(replace(VARIANTS[variant], **overrides))
 
 
 class SDCNet(nn.Module):
     def __init__(self, config: ModelConfig = ModelConfig()):
         super().__init__()
-        if config.fsnet_inputs not in FSNET_INPUTS:
-            raise ValueError(f"fsnet_inputs must be one of {FSNET_INPUTS}")
         self.config = config
         self.prefill = MorphologicalPrefill()
         blocks = config.seg_factor**2  # full-resolution pixels per FSNet pixel
         fs_channels = {"both": blocks + 2, "gray": blocks, "sparse": 2}[config.fsnet_inputs]
-        self.fsnet = FSNet(fs_channels, blocks) if config.use_fsnet else None
-        self.fdcnet = FDCNet(2, config.widths, config.fusion, config.grid, config.heads)
+        self.fsnet = (
+            FSNet(in_channels=fs_channels, out_channels=blocks) if config.use_fsnet else None
+        )
+        self.refiner = MaskRefiner() if config.use_fsnet and config.mask_refiner else None
+        plane = config.depth_base == "plane"
+        self.plane_fit = PlaneFitPrefill(factor=config.factor) if plane else None
+        cells = config.factor**2 if config.subpixel else 1  # outputs per working pixel
+        self.fdcnet = FDCNet(
+            gray_channels=cells,
+            depth_channels=4 if plane else 2,
+            out_channels=cells,
+            widths=config.widths,
+            fusion=config.fusion,
+            grid=config.grid,
+            heads=config.heads,
+        )
+        if plane:  # start from the plane fit itself: the residual head begins at zero
+            nn.init.zeros_(self.fdcnet.head.weight)
+            nn.init.zeros_(self.fdcnet.head.bias)
 
     def segmentation_parameters(self) -> list[nn.Parameter]:
         """Stage 1 trains these; stage 2 freezes them."""
-        return [] if self.fsnet is None else list(self.fsnet.parameters())
+        parts = [m for m in (self.fsnet, self.refiner) if m is not None]
+        return [p for m in parts for p in m.parameters()]
 
     def reference_depth(self, sparse_lr: torch.Tensor) -> torch.Tensor:
         """Mean LIDAR return per image (B, 1, 1, 1) metres; 0 when there is none."""
@@ -107,6 +159,7 @@ class SDCNet(nn.Module):
         return {
             "gray": gray_p,
             "gray_lr": F.avg_pool2d(gray_p, self.config.factor),
+            "sparse": sparse_p,
             "sparse_seg": sparse_seg,
             "sparse_lr": sparse_lr,
             "d_ref": self.reference_depth(sparse_lr),
@@ -123,17 +176,36 @@ class SDCNet(nn.Module):
             "gray": [blocks],
             "sparse": [returns, relative],
         }[self.config.fsnet_inputs]
-        return torch.sigmoid(F.pixel_shuffle(self.fsnet(torch.cat(fs_in, 1)), seg))
+        logit = F.pixel_shuffle(self.fsnet(torch.cat(fs_in, 1)), seg)
+        if self.refiner is not None:
+            logit = self.refiner(x["gray"], logit)
+        return torch.sigmoid(logit)
 
     def _regress(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
-        """Dense depth in metres at full (padded) resolution."""
-        scale = self.config.depth_scale_m
+        """Dense depth in metres at full (padded) resolution: a base (the local plane fit, or
+        the mean return) plus the residual FDCNet regresses from the gray image and pre-fills."""
+        c = self.config
+        d_ref, scale = x["d_ref"], c.depth_scale_m
         filled = self.prefill(x["sparse_lr"])
         valid = (filled > 0).to(filled.dtype)
-        depth_in = torch.cat([valid * (filled - x["d_ref"]) / scale, valid], 1)
-        depth_lr = x["d_ref"] + scale * self.fdcnet(x["gray_lr"], depth_in)
+        depth_in = [valid * (filled - d_ref) / scale, valid]
+        if self.plane_fit is None:
+            base, unit = d_ref, scale
+        else:
+            plane, weight = self.plane_fit(x["sparse"], d_ref)
+            fitted = (weight > 0).to(plane.dtype)
+            depth_in = [fitted * (plane - d_ref) / scale, fitted, *depth_in]
+            base_lr = torch.where(weight > 0, plane, torch.where(filled > 0, filled, d_ref))
+            base, unit = self._upsample(base_lr), c.residual_scale_m
+        gray = F.pixel_unshuffle(x["gray"], c.factor) if c.subpixel else x["gray_lr"]
+        out = self.fdcnet(gray, torch.cat(depth_in, 1))
+        residual = F.pixel_shuffle(out, c.factor) if c.subpixel else self._upsample(out)
+        return base + unit * residual
+
+    def _upsample(self, x: torch.Tensor) -> torch.Tensor:
+        """Working resolution -> full resolution, bilinear between cell centres."""
         return F.interpolate(
-            depth_lr, scale_factor=self.config.factor, mode="bilinear", align_corners=False
+            x, scale_factor=self.config.factor, mode="bilinear", align_corners=False
         )
 
     def segment(self, gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:

@@ -13,7 +13,7 @@ from torch import nn
 class SpatialAttention(nn.Module):
     """(f_cca, f_g) each (B, C, H, W) -> (B, C, H, W)."""
 
-    def __init__(self, kernel: int = 7):
+    def __init__(self, *, kernel: int = 7):
         super().__init__()
         self.conv = nn.Conv2d(4, 1, kernel, padding=kernel // 2)
 

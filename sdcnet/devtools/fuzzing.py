@@ -1,0 +1,194 @@
+"""The HTTP API fuzzed from its own OpenAPI schema with schemathesis (``tests/test_fuzz.py``,
+``benchmarks/fuzz.py``). Needs schemathesis (the ``test-runtime`` and ``dev`` extras)."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from sdcnet.devtools.frames import png_bytes, v2_inputs
+from sdcnet.devtools.targets import write_targets
+from sdcnet.npyio import npy_bytes
+from sdcnet.returns import returns_from_dense
+
+COMPLETE = "POST /complete"
+V2_INFER = "POST /v2/models/sdcnet/infer"
+POSE = "POST /pose"
+FUZZ_TARGET = "box"  # the target fuzz_targets() writes
+
+
+def fuzz_targets(folder: Path) -> Path:
+    """A targets folder of one small box (``FUZZ_TARGET``, 2 m), for ``sdc-serve --targets``:
+    the fuzzed service's ``POST /pose`` then has a target to register."""
+    return write_targets(folder, {FUZZ_TARGET: (trimesh.creation.box((2.0, 1.0, 0.5)), None)})
+
+
+@dataclass
+class FuzzReport:
+    """What a schemathesis run did: statuses per operation, failures (check, message, curl)."""
+
+    statuses: dict[str, dict[int | None, int]]
+    failures: list[str]
+    seconds: float
+
+    @property
+    def requests(self) -> int:
+        return sum(sum(counts.values()) for counts in self.statuses.values())
+
+    def summary(self) -> str:
+        """A markdown table of statuses per operation, then the failures."""
+        codes = sorted({c for counts in self.statuses.values() for c in counts}, key=str)
+        lines = [
+            "| operation | requests | " + " | ".join(str(c) for c in codes) + " |",
+            "|---|---|" + "---|" * len(codes),
+        ]
+        for operation, counts in sorted(self.statuses.items()):
+            cells = " | ".join(str(counts.get(c, 0)) for c in codes)
+            lines.append(f"| {operation} | {sum(counts.values())} | {cells} |")
+        lines.append(
+            f"\n{self.requests} requests in {self.seconds:.1f} s, {len(self.failures)} failures"
+        )
+        return "\n".join(lines + self.failures)
+
+
+def fuzz_arrays() -> tuple[np.ndarray, np.ndarray]:
+    """A valid 64 x 64 frame: a bright gray gradient (uint8 128-254: foreground to the tiny
+    model, so that ``POST /pose`` gets a cloud) and 256 returns at 100-115 m (dense)."""
+    gray = (128 + np.add.outer(np.arange(64), np.arange(64))).astype(np.uint8)
+    sparse = np.zeros((64, 64), np.float32)
+    sparse[::4, ::4] = 100 + np.arange(256, dtype=np.float32).reshape(16, 16) / 16
+    return gray, sparse
+
+
+def fuzz_frame(depth_scale: float | None, as_returns: bool = False) -> dict[str, bytes]:
+    """``fuzz_arrays`` as the files of POST /complete: gray PNG and the returns as a ``.npy``
+    map or, when ``depth_scale`` (metres per unit) is given, a 16-bit PNG; or, ``as_returns``,
+    a ``.npy`` list (field ``returns``)."""
+    gray, sparse = fuzz_arrays()
+    if as_returns:
+        return {"gray": png_bytes(gray), "returns": npy_bytes(returns_from_dense(sparse))}
+    if depth_scale is None:
+        return {"gray": png_bytes(gray), "sparse": npy_bytes(sparse)}
+    units = np.clip(np.round(sparse / depth_scale), 0, 65535).astype(np.uint16)
+    units[::4, ::4] = np.maximum(units[::4, ::4], 1)  # a return stays a return at any scale
+    return {"gray": png_bytes(gray), "sparse": png_bytes(units)}
+
+
+def fuzz_inputs(binary: bool) -> tuple[list[dict], bytes]:
+    """``fuzz_arrays`` as the inputs of POST /v2/models/sdcnet/infer (``v2_inputs``)."""
+    gray, sparse = fuzz_arrays()
+    return v2_inputs(gray, returns_from_dense(sparse), binary)
+
+
+def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
+    """schemathesis ``before_call`` hook: a positive (schema-valid) inference case is sent
+    with a real frame in place of its generated images and tensors.
+
+    The schema can say that ``gray`` and ``sparse`` are files, not that they are a decodable
+    image and a depth map of the same size (nor that a form gives one of ``sparse`` and
+    ``returns``); it can say that v2 inputs are tensors, not which names, shapes and bytes make
+    a frame (nor that an output is asked for once). Without this, every "valid" case would be
+    refused (rightly) and the positive_data_acceptance check would test nothing. Every other
+    field keeps its generated value (intrinsics, depth_scale, outlier_removal, format; the v2
+    request's id, parameters and outputs). ``POST /pose`` takes the form of ``POST /complete``
+    and more: its valid cases also name the fuzzed service's target (``fuzz_targets``), send a
+    pose as ``init`` when they send one, and keep the frame's own intrinsics and depths (see
+    ``_pose_fields``). The frame goes in the transport's arguments, so the
+    case itself (and its positive label) is left as generated. Negative cases are sent as
+    generated.
+    """
+    meta = case.meta
+    if meta is None or meta.generation.mode.value != "positive":
+        return
+    operation = f"{case.method.upper()} {case.path}"
+    if operation in (COMPLETE, POSE) and isinstance(case.body, dict):
+        fields = {k: v for k, v in case.body.items() if k not in ("gray", "sparse", "returns")}
+        if operation == POSE:
+            fields = _pose_fields(fields)
+        as_returns = "returns" in case.body and "sparse" not in case.body
+        frame = fuzz_frame(fields.get("depth_scale"), as_returns and "depth_scale" not in fields)
+        kwargs["files"] = {name: (f"{name}.bin", data) for name, data in frame.items()}
+        kwargs["data"] = {k: v if isinstance(v, str) else json.dumps(v) for k, v in fields.items()}
+    elif operation == V2_INFER and isinstance(case.body, dict):
+        body = {**case.body, "inputs": fuzz_inputs(binary=False)[0]}
+        if body.get("outputs") is not None:
+            once = {output["name"]: output for output in reversed(body["outputs"])}
+            body["outputs"] = list(reversed(once.values())) or None
+        kwargs["json"] = body
+    elif operation == V2_INFER:  # the binary form: a JSON header, then the tensors' bytes
+        inputs, binary = fuzz_inputs(binary=True)
+        header = json.dumps({"inputs": inputs}).encode()
+        kwargs["data"] = header + binary
+        # (the transport takes headers from the case only; an undeclared header keeps it valid)
+        case.headers = {**(case.headers or {}), "Inference-Header-Content-Length": str(len(header))}
+
+
+def _pose_fields(fields: dict) -> dict:
+    """A valid ``POST /pose`` case's other fields: the known target, a pose as ``init`` (when
+    one is sent), and none of the intrinsics or ``depth_scale``. The schema cannot say that a
+    focal length of 1e-300 px, or a depth scale of 1e-6 m per unit on depths of 100 m, turn
+    the frame into a cloud light-years wide or millimetres small, which ``/pose`` refuses
+    (422) where ``/complete`` completes it."""
+    dropped = ("fx", "fy", "cx", "cy", "depth_scale")
+    kept = {k: v for k, v in fields.items() if k not in dropped}
+    kept["target"] = FUZZ_TARGET
+    if "init" in kept:
+        kept["init"] = json.dumps({"R": np.eye(3).tolist(), "t": [0.0, 0.0, 100.0]})
+    return kept
+
+
+def fuzz_api(url: str, max_examples: int, seed: int = 0) -> FuzzReport:
+    """Run schemathesis (examples, coverage and fuzzing phases, every check) on every
+    operation of the service at ``url``, from its /openapi.json; ``max_examples`` per
+    operation and phase. Leaves nothing in the working directory."""
+    import hypothesis.configuration
+    import schemathesis
+    from schemathesis.engine import events, from_schema
+    from schemathesis.hooks import GLOBAL_HOOK_DISPATCHER
+
+    config = schemathesis.Config.from_dict(
+        {
+            "seed": seed,
+            "cache": {"enabled": False},
+            "workers": 1,
+            "continue-on-failure": True,
+            "generation": {"max-examples": max_examples, "database": "none"},
+        }
+    )
+    statuses: dict[str, dict[int | None, int]] = {}
+    failures: list[str] = []
+    start = time.monotonic()
+    hook = schemathesis.hook("before_call")(real_files_for_valid_cases)
+    try:
+        with tempfile.TemporaryDirectory() as home:
+            hypothesis.configuration.set_hypothesis_home_dir(home)
+            schema = schemathesis.openapi.from_url(f"{url}/openapi.json", config=config)
+            for event in from_schema(schema).execute():
+                if isinstance(event, events.ScenarioFinished):
+                    _record(event.recorder, statuses, failures)
+                elif isinstance(event, events.NonFatalError | events.FatalError):
+                    failures.append(f"- error: {event}")
+    finally:
+        GLOBAL_HOOK_DISPATCHER.unregister(hook)
+    return FuzzReport(statuses, failures, time.monotonic() - start)
+
+
+def _record(recorder, statuses: dict, failures: list[str]) -> None:
+    counts = statuses.setdefault(recorder.label, {})
+    for interaction in recorder.interactions.values():
+        status = interaction.response.status_code if interaction.response else None
+        counts[status] = counts.get(status, 0) + 1
+    for checks in recorder.checks.values():
+        for check in checks:
+            if check.failure_info is not None:
+                failure = check.failure_info.failure
+                failures.append(
+                    f"- {recorder.label}: {check.name}: {failure.title}: {failure.message}\n"
+                    f"  {check.failure_info.code_sample}"
+                )

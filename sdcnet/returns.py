@@ -1,0 +1,191 @@
+"""LIDAR returns as a list: one row per return, ``(row, column, Z in metres)``, float32.
+
+The dense sparse map (H x W float32, 0 = no return) carries ~150 returns of a 1024 x 1024
+frame in 4 MiB; the list carries them in 12 bytes each. Both describe the same thing and
+convert exactly both ways:
+
+- rows and columns are integer pixel indices (0-based, row down, column right), stored as
+  float32 so that one array holds a return (exact up to 2^24 pixels);
+- Z is the camera-frame depth in metres, finite and > 0;
+- several returns on one pixel: the nearest (smallest Z) wins it, as
+  ``sdcnet.pipeline.resample_sparse`` decides when it moves returns to a coarser grid.
+
+On disk, a CSV file with the header ``row,col,z_m`` and one return per line, e.g.
+``examples/<name>.returns.csv``.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+CSV_HEADER = ("row", "col", "z_m")
+
+
+class ReturnsError(ValueError):
+    """Returns that cannot describe a frame; ``code`` names the problem for the service's
+    error answers (``wrong_shape``, ``wrong_dtype``, ``invalid_depth``, ``invalid_returns``,
+    ``no_returns``)."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+def scatter_nearest(
+    rows: np.ndarray, cols: np.ndarray, z: np.ndarray, shape: tuple[int, int]
+) -> np.ndarray:
+    """Dense float32 map of ``shape``: ``z`` metres at (``rows``, ``cols``), the smallest where
+    several land on one pixel, 0 elsewhere. Indices must lie inside ``shape``."""
+    out = np.full(shape, np.inf, np.float32)
+    np.minimum.at(out, (rows, cols), z.astype(np.float32))
+    out[np.isinf(out)] = 0
+    return out
+
+
+def _first(bad: np.ndarray) -> int:
+    """Index of the first return (row of ``bad``) that fails a check."""
+    return int(np.flatnonzero(bad.reshape(len(bad), -1).any(axis=1))[0])
+
+
+def check_returns(returns: np.ndarray, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """``returns`` validated, as float32 (N, 3); raises ``ReturnsError`` naming the first
+    return that fails.
+
+    N >= 1; every value finite; Z > 0 metres; rows and columns whole, non-negative pixel
+    indices. With the frame's ``shape`` (height, width): every return inside it, and N at
+    most height x width (more can only be repeats; it bounds the work a request may ask for).
+    """
+    if not isinstance(returns, np.ndarray) or returns.ndim != 2 or returns.shape[1] != 3:
+        got = returns.shape if isinstance(returns, np.ndarray) else type(returns).__name__
+        raise ReturnsError("wrong_shape", f"returns must be (N, 3): row, col, z_m; got shape {got}")
+    if returns.dtype.kind != "f" or returns.dtype.itemsize not in (4, 8):
+        raise ReturnsError(
+            "wrong_dtype", f"returns must hold float32 or float64 values, got {returns.dtype}"
+        )
+    if len(returns) == 0:
+        raise ReturnsError("no_returns", "no LIDAR return in the list: nothing to complete from")
+    if shape is not None and len(returns) > shape[0] * shape[1]:
+        raise ReturnsError(
+            "invalid_returns",
+            f"{len(returns)} returns for a {shape[1]} x {shape[0]} frame: at most one per "
+            "pixel on average",
+        )
+    if not np.isfinite(returns).all():
+        raise ReturnsError(
+            "invalid_depth",
+            f"returns must be finite numbers; return {_first(~np.isfinite(returns))} is not",
+        )
+    rows, cols, z = returns.T
+    if (z <= 0).any():
+        k = _first(z <= 0)
+        raise ReturnsError("invalid_depth", f"z_m must be > 0 (metres); return {k} has {z[k]}")
+    pixels = returns[:, :2]
+    bad = (pixels != np.round(pixels)) | (pixels < 0)
+    if bad.any():
+        raise ReturnsError(
+            "invalid_returns",
+            f"row and col must be pixel indices (whole, >= 0); return {_first(bad)} is not",
+        )
+    if shape is not None:
+        outside = (rows >= shape[0]) | (cols >= shape[1])
+        if outside.any():
+            k = _first(outside)
+            raise ReturnsError(
+                "invalid_returns",
+                f"return {k} at row {rows[k]:.0f}, col {cols[k]:.0f} is outside the "
+                f"{shape[1]} x {shape[0]} image",
+            )
+    return returns.astype(np.float32, copy=False)
+
+
+def dense_from_returns(returns: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The dense float32 (H, W) map of ``returns`` (metres, 0 = no return), nearest return
+    per pixel; the returns are validated against ``shape`` first (``ReturnsError``)."""
+    returns = check_returns(returns, shape)
+    rows = returns[:, 0].astype(np.intp)
+    cols = returns[:, 1].astype(np.intp)
+    return scatter_nearest(rows, cols, returns[:, 2], shape)
+
+
+def returns_from_dense(sparse: np.ndarray) -> np.ndarray:
+    """The returns of a dense map (H, W, metres, 0 = no return) as float32 (N, 3), in
+    row-major order; ``dense_from_returns(returns, sparse.shape)`` gives the map back exactly
+    (as float32). Raises ``ReturnsError`` for NaN, infinite or negative depths."""
+    if sparse.ndim != 2 or sparse.dtype.kind != "f":
+        raise ReturnsError(
+            "wrong_shape", f"a dense map is a float (H, W) array, got {sparse.dtype} {sparse.shape}"
+        )
+    if not np.isfinite(sparse).all():
+        bad = int(np.count_nonzero(~np.isfinite(sparse)))
+        raise ReturnsError("invalid_depth", f"the sparse map has {bad} NaN or infinite values")
+    if (sparse < 0).any():
+        raise ReturnsError(
+            "invalid_depth",
+            f"the sparse map has {int(np.count_nonzero(sparse < 0))} negative depths: metres "
+            ">= 0, 0 = no return",
+        )
+    rows, cols = np.nonzero(sparse)
+    returns = np.empty((len(rows), 3), np.float32)
+    returns[:, 0] = rows
+    returns[:, 1] = cols
+    returns[:, 2] = sparse[rows, cols]
+    return returns
+
+
+def _bad_line(lines: list[str]) -> str:
+    """Which data line of a CSV is not three numbers, and why (numpy's own parser failed)."""
+    for number, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        fields = line.split(",")
+        try:
+            if len(fields) != 3:
+                raise ValueError(f"{len(fields)} values")
+            [float(f) for f in fields]
+        except ValueError as exc:
+            return f"line {number}: expected row,col,z_m numbers, got {line!r} ({exc})"
+    return "expected row,col,z_m numbers on every line"
+
+
+def parse_returns_csv(text: str, source: str = "returns CSV") -> np.ndarray:
+    """float32 (N, 3) returns of CSV text: the header ``row,col,z_m``, then one return per
+    line (blank lines skipped). Checked as ``check_returns`` without a frame; every error
+    (``ReturnsError``) starts with ``source`` and names the line or return at fault."""
+    lines = text.lstrip("\ufeff").splitlines()
+    header = tuple(cell.strip() for cell in lines[0].split(",")) if lines else ()
+    if header != CSV_HEADER:
+        raise ReturnsError(
+            "invalid_returns",
+            f"{source}: the first line must be the header {','.join(CSV_HEADER)}",
+        )
+    if not any(line.strip() for line in lines[1:]):
+        raise ReturnsError("no_returns", f"{source}: no LIDAR return after the header")
+    try:  # numpy's C parser: fast on long lists; the slow scan only names a bad line
+        values = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
+    except ValueError:
+        raise ReturnsError("invalid_returns", f"{source}: {_bad_line(lines)}") from None
+    if values.shape[1] != 3:
+        raise ReturnsError("invalid_returns", f"{source}: {_bad_line(lines)}")
+    try:
+        return check_returns(values)
+    except ReturnsError as exc:
+        raise ReturnsError(exc.code, f"{source}: {exc}") from None
+
+
+def read_returns_csv(path: str | Path) -> np.ndarray:
+    """float32 (N, 3) returns of a CSV file (``parse_returns_csv``; errors start with the
+    file's path); ``OSError`` if it cannot be read."""
+    path = Path(path)
+    return parse_returns_csv(path.read_text(), str(path))
+
+
+def write_returns_csv(path: str | Path, returns: np.ndarray) -> None:
+    """Write ``returns`` as a CSV file (header ``row,col,z_m``); Z with float32's 9
+    significant digits, so that ``read_returns_csv`` reads back the same float32 values."""
+    returns = check_returns(returns)
+    lines = [",".join(CSV_HEADER)]
+    lines += [f"{int(r)},{int(c)},{float(z):.9g}" for r, c, z in returns]
+    Path(path).write_text("\n".join(lines) + "\n")

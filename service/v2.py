@@ -1,0 +1,458 @@
+"""The Open Inference Protocol v2 (KServe, Triton) for ``POST /v2/models/sdcnet/infer``, with
+its binary tensor data extension: request bytes to a validated ``Frame``, and a completed
+frame to answer bytes. Clients such as ``tritonclient.http`` talk to it unmodified.
+
+A request is a JSON header, optionally followed by the raw little-endian bytes of the inputs
+that say ``"parameters": {"binary_data_size": n}`` (in the order of ``inputs``); the
+``Inference-Header-Content-Length`` HTTP header gives the JSON header's length when binary data
+follows. Answers are built the same way: outputs asked with ``binary_data`` (or all of them,
+with the request parameter ``binary_data_output``) follow the JSON header as raw bytes.
+
+Inputs: ``gray`` (UINT8 or UINT16, [H, W]) and either ``sparse`` (FP32, [H, W], metres, 0 = no
+return) or ``returns`` (FP32, [N, 3]: row, column, Z metres). Request parameters: ``fx``,
+``fy``, ``cx``, ``cy`` (pixels) and ``outlier_removal``. Outputs: ``depth`` (FP32, [H, W]),
+``mask`` (UINT8, [H, W]) and ``points`` (FP32, [N, 3]). sdcnet's own output parameters ask for
+the compact layouts of ``sdcnet.compact``: ``region`` (depth, mask: only the spacecraft's
+region, the smallest window holding the mask; the answer says where), ``bits`` (mask: 8
+pixels a byte) and ``fp16`` (depth: float16 residuals above ``depth_offset``).
+
+The JSON header is validated by the pydantic models below (their JSON schema is the route's
+OpenAPI request body); tensors are checked for datatype, shape and byte counts before any array
+is made, then go through the same checks as ``POST /complete``'s files
+(``sdcnet.service.decode.frame_of``). Every problem is an ``ApiError``, which the v2 routes
+answer as ``{"error": "..."}``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from sdcnet.compact import crop, fp16_residuals, pack_mask
+from sdcnet.service.decode import Frame, frame_of
+from sdcnet.service.deps import MODEL_NAME
+from sdcnet.service.errors import ApiError
+from sdcnet.service.inference import Answer, Completed, Engine, PhaseTimer, complete_frame
+from sdcnet.service.schemas import CompletionSummary
+
+HEADER_LENGTH = "Inference-Header-Content-Length"
+#: numpy type of each datatype the protocol's tensors use here; binary data is little-endian.
+DTYPES = {
+    "UINT8": np.dtype("u1"),
+    "UINT16": np.dtype("<u2"),
+    "FP16": np.dtype("<f2"),
+    "FP32": np.dtype("<f4"),
+}
+#: input name -> (datatypes it takes, shape it has: -1 = any size)
+INPUTS = {
+    "gray": (("UINT8", "UINT16"), (-1, -1)),
+    "sparse": (("FP32",), (-1, -1)),
+    "returns": (("FP32",), (-1, 3)),
+}
+#: output name -> (datatype, shape) in the full-frame layout
+OUTPUTS = {"depth": ("FP32", (-1, -1)), "mask": ("UINT8", (-1, -1)), "points": ("FP32", (-1, 3))}
+
+
+# -- the JSON header (request) ---------------------------------------------------------
+
+
+class _Strict(BaseModel):
+    """Exactly the fields declared, with exactly their JSON types: what the OpenAPI schema
+    says is refused is refused (no "12" for 12, no unknown key)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+#: Bounds of the intrinsics (pixels) that keep every point finite in float32: JSON, which
+#: answers may be sent in, has no infinity.
+FOCAL_RANGE = (1e-3, 1e9)
+PRINCIPAL_POINT_LIMIT = 1e6
+FocalLength = Annotated[float, Field(ge=FOCAL_RANGE[0], le=FOCAL_RANGE[1], allow_inf_nan=False)]
+Pixels = Annotated[
+    float, Field(ge=-PRINCIPAL_POINT_LIMIT, le=PRINCIPAL_POINT_LIMIT, allow_inf_nan=False)
+]
+
+
+class InferParameters(_Strict):
+    """Request parameters."""
+
+    fx: FocalLength | None = Field(None, description="focal length along x, pixels")
+    fy: FocalLength | None = Field(None, description="focal length along y, pixels")
+    cx: Pixels | None = Field(None, description="principal point column, pixels")
+    cy: Pixels | None = Field(None, description="principal point row, pixels")
+    outlier_removal: bool = Field(
+        False, description="statistical outlier removal on the point cloud (paper Fig. 7)"
+    )
+    binary_data_output: bool = Field(
+        False, description="every output as binary data unless its own binary_data says no"
+    )
+
+
+class InputParameters(_Strict):
+    binary_data_size: Annotated[int, Field(ge=0)] | None = Field(
+        None, description="bytes of this input in the binary data after the JSON header"
+    )
+
+
+class RequestInput(_Strict):
+    """One input tensor: its values in ``data`` (row-major, flat or nested) or as
+    ``binary_data_size`` bytes of the binary data."""
+
+    name: str = Field(description="gray, sparse or returns")
+    shape: list[Annotated[int, Field(ge=0)]]
+    datatype: str = Field(description="gray: UINT8 or UINT16; sparse, returns: FP32")
+    parameters: InputParameters | None = None
+    data: list[Any] | None = None
+
+
+class BinaryOutputParameters(_Strict):
+    binary_data: bool | None = Field(
+        None, description="this output as binary data (default: binary_data_output)"
+    )
+
+
+class DepthOutputParameters(BinaryOutputParameters):
+    region: bool = Field(
+        False, description="only the smallest window holding the mask, 0 outside (sdcnet)"
+    )
+    fp16: bool = Field(
+        False,
+        description="FP16 residuals above the output parameter depth_offset (metres), -1 "
+        "where the depth is 0; within 8 mm for a spacecraft < 32 m deep (sdcnet)",
+    )
+
+
+class MaskOutputParameters(BinaryOutputParameters):
+    region: bool = Field(
+        False, description="only the smallest window holding the mask, 0 outside (sdcnet)"
+    )
+    bits: bool = Field(False, description="8 pixels a byte, numpy.packbits order (sdcnet)")
+
+
+class DepthOutput(_Strict):
+    name: Literal["depth"]
+    parameters: DepthOutputParameters | None = None
+
+
+class MaskOutput(_Strict):
+    name: Literal["mask"]
+    parameters: MaskOutputParameters | None = None
+
+
+class PointsOutput(_Strict):
+    name: Literal["points"]
+    parameters: BinaryOutputParameters | None = None
+
+
+RequestOutput = Annotated[DepthOutput | MaskOutput | PointsOutput, Field(discriminator="name")]
+
+
+class InferenceRequest(_Strict):
+    """The JSON header of ``POST /v2/models/sdcnet/infer``."""
+
+    id: str | None = Field(None, description="echoed in the answer")
+    parameters: InferParameters | None = None
+    inputs: list[RequestInput] = Field(description="gray, and sparse or returns")
+    outputs: list[RequestOutput] | None = Field(
+        None, description="depth, mask, points, each at most once (default: all three)"
+    )
+
+
+# -- the JSON header (answer) ----------------------------------------------------------
+
+Scalar = bool | int | float | str
+
+
+class ResponseOutput(BaseModel):
+    name: str
+    datatype: str
+    shape: list[int]
+    parameters: dict[str, Scalar] | None = Field(
+        None,
+        description="binary_data_size; for a compact layout region_y0, region_x0, "
+        "region_height, region_width (pixels) and depth_offset (metres)",
+    )
+    data: list[Any] | None = None
+
+
+class InferenceResponse(BaseModel):
+    """The answer's JSON header; the summary of ``POST /complete`` is in ``parameters``
+    (timings in milliseconds, intrinsics in pixels)."""
+
+    model_name: str
+    model_version: str
+    id: str | None = None
+    parameters: dict[str, Scalar]
+    outputs: list[ResponseOutput]
+
+
+# -- request bytes to a frame ----------------------------------------------------------
+
+
+def _bad(message: str, code: str = "invalid_request", status: int = 400) -> ApiError:
+    return ApiError(status, code, message)
+
+
+def split_body(body: bytes, header_length: str | None) -> tuple[bytes, memoryview]:
+    """The JSON header and the binary data of a request body."""
+    if header_length is None:
+        return body, memoryview(b"")
+    try:
+        length = int(header_length)
+    except ValueError:
+        raise _bad(f"{HEADER_LENGTH} must be a number of bytes, got {header_length!r}") from None
+    if not 0 < length <= len(body):
+        raise _bad(
+            f"{HEADER_LENGTH} is {length} but the body holds {len(body)} bytes: the JSON "
+            "header's length must be between 1 and the body's"
+        )
+    return body[:length], memoryview(body)[length:]
+
+
+def _validation_message(exc: ValidationError) -> str:
+    """One line per problem: where in the JSON header and what."""
+    problems = []
+    for error in exc.errors(include_url=False):
+        if error["type"] == "json_invalid":
+            return f"the inference header is not valid JSON: {error['msg']}"
+        where = ".".join(str(part) for part in error["loc"]) or "the inference header"
+        problems.append(f"{where}: {error['msg']}")
+    return "invalid inference request: " + "; ".join(problems)
+
+
+def parse_request(header: bytes) -> InferenceRequest:
+    try:
+        return InferenceRequest.model_validate_json(header)
+    except ValidationError as exc:
+        raise _bad(_validation_message(exc)) from None
+
+
+#: What numpy made of JSON data that is not numbers of the right kind.
+_KINDS = {"b": "booleans", "U": "strings", "O": "mixed or ragged values", "f": "fractions"}
+
+
+def _from_json(name: str, data: list, datatype: str, shape: tuple[int, ...]) -> np.ndarray:
+    """The tensor of JSON ``data`` (flat or nested, row-major) as ``datatype``."""
+    dtype = DTYPES[datatype]
+    try:
+        values = np.asarray(data)
+    except ValueError:
+        raise _bad(f"input {name}: data is not a regular array of numbers") from None
+    if values.size != math.prod(shape):
+        raise _bad(
+            f"input {name}: data holds {values.size} values, shape {list(shape)} needs "
+            f"{math.prod(shape)}"
+        )
+    kinds = "iu" if dtype.kind == "u" else "iuf"
+    if values.size and values.dtype.kind not in kinds:
+        found = _KINDS.get(values.dtype.kind, "other values")
+        raise _bad(f"input {name}: data must hold {datatype} numbers, got {found}", "wrong_dtype")
+    if dtype.kind == "u" and values.size:
+        low, high = values.min(), values.max()
+        if low < 0 or high > np.iinfo(dtype).max:
+            raise _bad(
+                f"input {name}: {datatype} values lie in 0..{np.iinfo(dtype).max}, got "
+                f"{low}..{high}",
+                "wrong_dtype",
+                400,
+            )
+    return values.astype(dtype).reshape(shape)
+
+
+def _input_shape(inp: RequestInput) -> tuple[int, ...]:
+    """The input's shape, once its datatype and rank are the ones its name takes."""
+    datatypes, expected = INPUTS[inp.name]
+    if inp.datatype not in datatypes:
+        raise _bad(
+            f"input {inp.name} has datatype {inp.datatype}; it takes {' or '.join(datatypes)}",
+            "wrong_dtype",
+        )
+    shape = tuple(inp.shape)
+    if len(shape) != len(expected) or (expected[-1] == 3 and shape[-1] != 3):
+        wanted = "[N, 3]" if expected[-1] == 3 else "[H, W]"
+        raise _bad(f"input {inp.name} has shape {list(shape)}; it must be {wanted}", "wrong_shape")
+    return shape
+
+
+def input_tensors(request: InferenceRequest, binary: memoryview, max_pixels: int) -> dict:
+    """name -> array of every input, from its JSON data or its slice of the binary data."""
+    tensors: dict[str, np.ndarray] = {}
+    offset = 0
+    for inp in request.inputs:
+        if inp.name not in INPUTS:
+            raise _bad(f"unknown input {inp.name!r}: the inputs are {', '.join(INPUTS)}")
+        if inp.name in tensors:
+            raise _bad(f"input {inp.name} is given twice")
+        shape = _input_shape(inp)
+        if inp.name != "returns" and shape[0] * shape[1] > max_pixels:
+            raise _bad(
+                f"input {inp.name} is {shape[1]} x {shape[0]} = {shape[0] * shape[1]} pixels, "
+                f"above this service's limit of {max_pixels}",
+                "too_large",
+                413,
+            )
+        size = inp.parameters.binary_data_size if inp.parameters else None
+        if size is not None and inp.data is not None:
+            raise _bad(f"input {inp.name} has both data and binary_data_size: give one")
+        if size is None and inp.data is None:
+            raise _bad(f"input {inp.name} has no values: give data or binary_data_size")
+        if size is None:
+            tensors[inp.name] = _from_json(inp.name, inp.data, inp.datatype, shape)
+            continue
+        dtype = DTYPES[inp.datatype]
+        expected = math.prod(shape) * dtype.itemsize
+        if size != expected:
+            raise _bad(
+                f"input {inp.name}: binary_data_size is {size} bytes but a {inp.datatype} "
+                f"{list(shape)} tensor holds {expected}"
+            )
+        if offset + size > len(binary):
+            raise _bad(
+                f"input {inp.name} needs bytes {offset}..{offset + size} of the binary data, "
+                f"which holds {len(binary)} (is {HEADER_LENGTH} right?)"
+            )
+        tensors[inp.name] = np.frombuffer(binary, dtype, math.prod(shape), offset).reshape(shape)
+        offset += size
+    if offset != len(binary):
+        raise _bad(
+            f"{len(binary) - offset} bytes of binary data follow the last input's (the inputs' "
+            f"binary_data_size add up to {offset})"
+        )
+    return tensors
+
+
+def frame_of_request(request: InferenceRequest, binary: memoryview, max_pixels: int) -> Frame:
+    """The validated frame of a parsed request and its binary data."""
+    tensors = input_tensors(request, binary, max_pixels)
+    if "gray" not in tensors:
+        raise _bad("missing input gray (UINT8 or UINT16, [H, W])")
+    if ("sparse" in tensors) == ("returns" in tensors):
+        given = "both" if "sparse" in tensors else "neither"
+        raise _bad(
+            f"send the LIDAR returns once: input sparse (FP32 [H, W]) or returns (FP32 "
+            f"[N, 3]), not {given}"
+        )
+    parameters = request.parameters or InferParameters()
+    return frame_of(
+        tensors["gray"],
+        tensors.get("sparse"),
+        tensors.get("returns"),
+        max_pixels,
+        fx=parameters.fx,
+        fy=parameters.fy,
+        cx=parameters.cx,
+        cy=parameters.cy,
+        outlier_removal=parameters.outlier_removal,
+    )
+
+
+# -- a completed frame to answer bytes -------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Tensor:
+    """One output as it travels: the array, its datatype and its output parameters."""
+
+    array: np.ndarray
+    datatype: str
+    parameters: dict[str, Scalar]
+
+
+def output_tensor(output: DepthOutput | MaskOutput | PointsOutput, done: Completed) -> Tensor:
+    """``output`` of a completed frame, in the layout its parameters ask for."""
+    if isinstance(output, PointsOutput):
+        return Tensor(done.points, "FP32", {})
+    params = output.parameters
+    array = done.depth if isinstance(output, DepthOutput) else done.mask.astype(np.uint8)
+    extra: dict[str, Scalar] = {}
+    if params is not None and params.region:
+        y0, x0, height, width = done.window
+        array = crop(array, y0, x0, height, width)
+        extra = {"region_y0": y0, "region_x0": x0, "region_height": height}
+        extra["region_width"] = width
+    if isinstance(output, DepthOutput):
+        if params is not None and params.fp16:
+            array, offset = fp16_residuals(array)
+            return Tensor(array, "FP16", {**extra, "depth_offset": offset})
+        return Tensor(array, "FP32", extra)
+    if params is not None and params.bits:
+        return Tensor(pack_mask(array), "UINT8", {**extra, "bits": True})
+    return Tensor(array, "UINT8", extra)
+
+
+def summary_parameters(summary: CompletionSummary) -> dict[str, Scalar]:
+    """The summary of ``POST /complete`` as flat protocol parameters (scalars only)."""
+    flat = summary.model_dump(exclude={"intrinsics", "timings", "model_version"})
+    return {**flat, **summary.intrinsics.model_dump(), **summary.timings.model_dump()}
+
+
+def requested_outputs(request: InferenceRequest) -> list[DepthOutput | MaskOutput | PointsOutput]:
+    """The outputs asked for, each once (default: depth, mask and points)."""
+    if request.outputs is None:
+        return [DepthOutput(name="depth"), MaskOutput(name="mask"), PointsOutput(name="points")]
+    names = [o.name for o in request.outputs]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise _bad(f"output {', '.join(repeated)} is asked for more than once")
+    if not names:
+        raise _bad("outputs is empty: ask for depth, mask or points, or leave it out for all")
+    return list(request.outputs)
+
+
+def encode_outputs(
+    outputs: list[DepthOutput | MaskOutput | PointsOutput], done: Completed, binary_default: bool
+) -> tuple[list[dict], list[np.ndarray]]:
+    """The outputs' JSON entries and, in the same order, the binary data of those sent so."""
+    entries, chunks = [], []
+    for output in outputs:
+        tensor = output_tensor(output, done)
+        asked = output.parameters.binary_data if output.parameters else None
+        entry: dict[str, Any] = {"name": output.name, "datatype": tensor.datatype}
+        entry["shape"] = list(tensor.array.shape)
+        parameters = dict(tensor.parameters)
+        if binary_default if asked is None else asked:
+            array = np.ascontiguousarray(tensor.array, DTYPES[tensor.datatype])
+            parameters["binary_data_size"] = array.nbytes
+            chunks.append(array.reshape(-1).view(np.uint8))  # the bytes, not a copy
+        else:
+            entry["data"] = tensor.array.ravel().tolist()
+        if parameters:
+            entry["parameters"] = parameters
+        entries.append(entry)
+    return entries, chunks
+
+
+def answer(engine: Engine, body: bytes, header_length: str | None, max_pixels: int) -> Answer:
+    """Parse, complete, encode one inference request; raises ``ApiError`` for bad input."""
+    timer = PhaseTimer()
+    with timer("decode"):
+        header, binary = split_body(body, header_length)
+        request = parse_request(header)
+        outputs = requested_outputs(request)
+        frame = frame_of_request(request, binary, max_pixels)
+    done = complete_frame(engine, frame, max_pixels, timer)
+    parameters = request.parameters or InferParameters()
+    with timer("encode"):
+        entries, chunks = encode_outputs(outputs, done, parameters.binary_data_output)
+    document: dict[str, Any] = {
+        "model_name": MODEL_NAME,
+        "model_version": engine.model.info.version,
+    }
+    if request.id is not None:
+        document["id"] = request.id
+    document["parameters"] = summary_parameters(done.summary(engine.model, timer))
+    document["outputs"] = entries
+    header_bytes = json.dumps(document).encode()
+    if not chunks:
+        return Answer(header_bytes, timer, media_type="application/json")
+    return Answer(
+        b"".join([header_bytes, *chunks]),
+        timer,
+        headers={HEADER_LENGTH: str(len(header_bytes))},
+        media_type="application/octet-stream",
+    )
