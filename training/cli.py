@@ -119,7 +119,12 @@ def cmd_real(args: argparse.Namespace) -> int:
         )
     )
     fn, stride = methods[first]
-    print(gallery(fn, store, records, stride, out / "gallery.png"))
+    others = {
+        name: method
+        for name, method in methods.items()
+        if name != first and not name.startswith("onnx:")  # the same model as the first
+    }
+    print(gallery(fn, store, records, stride, out / "gallery.png", others))
     print("\n".join(lines))
     return 0
 
