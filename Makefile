@@ -73,26 +73,43 @@ docker-check: $(STAMP)
 	bash docker/check.sh $(DOCKER_CHECK_ARGS)
 
 ## model: regenerate the dataset, train, evaluate and export the shipped model with its card
-## (about 2 h on 2 cores: the cpu preset, then FSNet trained 16 more epochs from that model,
-## since 8 left it short; PRESET=paper on a GPU); `make ablation` after it refreshes the card's
-## ablation tables
+## (about 4 h on 2 idle cores; PRESET=paper on a GPU). The shipped weights come from four runs,
+## each starting from the one before: the first design (sdcnet-v1, cpu preset), its FSNet 16
+## more epochs; then the plane-fit depth path trained on that FSNet (stage 2), and FSNet with
+## the refiner 16 more epochs with a soft-IOU term. The first model is kept in runs/first/ for
+## the side-by-side reports. `make ablation` after it refreshes the card's ablation tables
 .PHONY: model
 PRESET ?= cpu
 RUN ?= runs/sdcnet
+FIRST ?= runs/first/sdcnet.pt
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/paper --models 126 --views 64 --size 1024 --seed 0
-	$(VENV)/bin/sdc-train fit --data data/paper --out $(RUN) --preset $(PRESET)
+	$(VENV)/bin/sdc-train fit --data data/paper --out $(RUN) --preset $(PRESET) --variant sdcnet-v1
 	$(VENV)/bin/sdc-train fit --data data/paper --out $(RUN)-ft --preset $(PRESET) \
 		--init-weights $(RUN)/best.pt --fsnet-epochs 16 --epochs 0 --lr 5e-4 --seed 1
-	$(VENV)/bin/sdc-train ship --checkpoint $(RUN)-ft/best_stage1.pt --out models/sdcnet.pt
-	$(VENV)/bin/sdc-train evaluate --checkpoint models/sdcnet.pt --data data/paper --split test \
-		--floor --out models/eval_test.json --title "Synthetic test split (18 unseen models)"
+	mkdir -p $(dir $(FIRST))
+	$(VENV)/bin/sdc-train ship --checkpoint $(RUN)-ft/best_stage1.pt --out $(FIRST)
+	$(VENV)/bin/sdc-export --checkpoint $(FIRST) --out $(FIRST:.pt=.onnx)
+	$(VENV)/bin/sdc-train fit --data data/paper --out runs/v2 --preset $(PRESET) --variant sdcnet \
+		--init-segmentation $(FIRST)
+	$(VENV)/bin/sdc-train fit --data data/paper --out runs/v2-ft --preset $(PRESET) \
+		--init-weights runs/v2/best.pt --fsnet-epochs 16 --epochs 0 --lr 5e-4 --seed 1 --iou-loss 1
+	$(VENV)/bin/sdc-train ship --checkpoint runs/v2-ft/best_stage1.pt --out models/sdcnet.pt
+	$(MAKE) reports
+
+## reports: evaluate the shipped checkpoint beside the first model and the classical fill (test
+## split and real meshes), export it with its parity check, refresh the gallery and the card
+.PHONY: reports
+reports: $(STAMP)
+	$(VENV)/bin/sdc-train evaluate --checkpoint models/sdcnet.pt $(FIRST) --names sdcnet "first model" \
+		--data data/paper --split test --floor --out models/eval_test.json \
+		--title "Synthetic test split (18 unseen models)"
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out models/sdcnet.onnx \
 		--metrics models/eval_test.json
 	$(VENV)/bin/sdc-train evaluate --onnx models/sdcnet.onnx --data data/paper --split test \
 		--out models/eval_test_onnx.json --title "Synthetic test split through onnxruntime (the service's numbers)"
-	$(VENV)/bin/sdc-train real --checkpoint models/sdcnet.pt --onnx models/sdcnet.onnx --floor \
-		--out docs/real
+	$(VENV)/bin/sdc-train real --checkpoint models/sdcnet.pt $(FIRST) --names sdcnet "first model" \
+		--onnx models/sdcnet.onnx --floor --out docs/real
 	$(MAKE) card
 
 ## bench: regenerate the benchmark tables and plots in docs/benchmarks/ (needs data/paper;
@@ -101,6 +118,7 @@ model: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out runs/variants/sdcnet.onnx \
 		--variants fp16 int8 --calibration-data data/paper
+	$(PY) -m benchmarks.pipeline_latency --onnx models/sdcnet.onnx $(FIRST:.pt=.onnx)
 	$(PY) -m benchmarks.model_latency --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx
 	$(PY) -m benchmarks.accuracy_speed --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx \
 		--data data/paper --split test --limit 192

@@ -122,7 +122,12 @@ def cmd_real(args: argparse.Namespace) -> int:
         )
     )
     fn, stride = methods[first]
-    print(gallery(fn, store, records, stride, out / "gallery.png"))
+    others = {
+        name: method
+        for name, method in methods.items()
+        if name != first and not name.startswith("onnx:")  # the same model as the first
+    }
+    print(gallery(fn, store, records, stride, out / "gallery.png", others))
     print("\n".join(lines))
     return 0
 
@@ -249,6 +254,7 @@ def parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("real", help="real spacecraft meshes: per-spacecraft table and gallery")
     r.add_argument("--checkpoint", nargs="*", default=[], help="first one draws the gallery")
+    r.add_argument("--names", nargs="*", help="table labels of the checkpoints, in order")
     r.add_argument("--onnx", help="also the exported ONNX model")
     r.add_argument("--floor", action="store_true", help="also the classical morphological fill")
     r.add_argument(

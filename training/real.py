@@ -55,14 +55,27 @@ def error_map(pred: np.ndarray, mask: np.ndarray, gt: np.ndarray, alpha: float =
     return out
 
 
-def gallery_row(model_fn: ModelFn, sample, stride: int, caption: str) -> list[np.ndarray]:
-    """gray | LIDAR returns | predicted depth | ground truth | error map | side view."""
+def gallery_row(
+    model_fn: ModelFn,
+    sample,
+    stride: int,
+    caption: str,
+    others: dict[str, tuple[ModelFn, int]] | None = None,
+) -> list[np.ndarray]:
+    """gray | LIDAR returns | predicted depth | ground truth | error map | side views of the
+    completed cloud, of each of ``others``' clouds (name -> model, stride) and of the true one:
+    where a flat panel comes out flat, and where it ripples between scan lines."""
     result = complete(model_fn, sample.gray, sample.sparse, stride=stride)
     K = Intrinsics(**sample.meta["intrinsics"])
     window = object_crop(sample.mask | result.mask)
     valid = sample.depth[sample.mask]
     near, far = (float(valid.min()), float(valid.max())) if valid.size else (None, None)
     m = frame_metrics(result.depth, result.mask, sample.depth)
+    sides = [labelled(side_view(back_project(result.depth, result.mask, K)), "completed, side")]
+    for name, (fn, other_stride) in (others or {}).items():
+        other = complete(fn, sample.gray, sample.sparse, stride=other_stride)
+        sides.append(labelled(side_view(back_project(other.depth, other.mask, K)), f"{name}, side"))
+    sides.append(labelled(side_view(back_project(sample.depth, sample.mask, K)), "true, side"))
     return [
         labelled(gray_bgr(sample.gray)[window], caption),
         labelled(
@@ -77,19 +90,24 @@ def gallery_row(model_fn: ModelFn, sample, stride: int, caption: str) -> list[np
         labelled(
             error_map(result.depth, result.mask, sample.depth)[window], f"MAEI {m['MAEI']:.2f} m"
         ),
-        labelled(side_view(back_project(result.depth, result.mask, K)), "completed cloud, side"),
+        *sides,
     ]
 
 
 def gallery(
-    model_fn: ModelFn, store: SampleStore, records: list[dict], stride: int, out: Path
+    model_fn: ModelFn,
+    store: SampleStore,
+    records: list[dict],
+    stride: int,
+    out: Path,
+    others: dict[str, tuple[ModelFn, int]] | None = None,
 ) -> Path:
-    """One row per spacecraft (its first view in ``records``)."""
+    """One row per spacecraft (its first view in ``records``); ``others`` add side views."""
     first: dict[str, dict] = {}
     for record in records:
         first.setdefault(record["model_name"], record)
     rows = [
-        gallery_row(model_fn, store.load(r), stride, f"{name} {r['distance_m']:.0f} m")
+        gallery_row(model_fn, store.load(r), stride, f"{name} {r['distance_m']:.0f} m", others)
         for name, r in first.items()
     ]
     out.parent.mkdir(parents=True, exist_ok=True)
