@@ -94,33 +94,47 @@ class Completion:
 
 
 #: Foreground components without a LIDAR return are kept only this close (pixels) to the
-#: spacecraft, i.e. to a component with returns or to one kept before (a chain along a boom).
+#: spacecraft, i.e. to a return or to a component kept before (a chain along a boom) ...
 KEEP_DISTANCE_PX = 16.0
+#: ... and only from this many pixels: a star is a blur of a few pixels, a part is larger.
+MIN_PART_PX = 8
 
 
-def drop_specks(mask: np.ndarray, sparse: np.ndarray, keep_distance_px: float) -> np.ndarray:
+def drop_specks(
+    mask: np.ndarray, sparse: np.ndarray, keep_distance_px: float, min_part_px: float
+) -> np.ndarray:
     """``mask`` without the components that cannot be the spacecraft: stars and noise.
 
-    The LIDAR answers from the whole target, so its returns mark the spacecraft; a foreground
-    component is kept when a chain of foreground components, each within ``keep_distance_px``
-    (Chebyshev distance) of the next, links it to a return, and dropped otherwise. Stars lie
-    anywhere in the frame: on the test split and the real meshes, the shipped model's
-    return-less components off the target were a median 90-120 px from the nearest return,
-    the parts of the spacecraft (booms, antennas too thin or dark for the beams) 14-22 px.
+    The LIDAR answers from the whole target, so a component (8-connected) holding a return is
+    the spacecraft. One without returns (a boom or an antenna too thin or dark for the beams,
+    or a star) is kept when it covers at least ``min_part_px`` pixels and a chain of foreground
+    components, each within ``keep_distance_px`` (Chebyshev) of the next, links it to a return.
+    On 42 test-split and 64 real-mesh frames of the first shipped model, return-less components
+    off the target were a median 90-120 px from the nearest return and 2 px in area, the parts
+    of the spacecraft 14-22 px away; with 16 px and 8 px the false specks per frame fell from
+    10.6 to 0.05 (test split) and 10.1 to 0.03 (real meshes), 10-16 true pixels lost per frame.
 
     One dilation by half the distance joins what is linked; its connected pieces that hold a
-    return are the spacecraft.
+    return are the spacecraft's reach.
     """
     mask = mask.astype(bool)
     returns = sparse > 0
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        mask.astype(np.uint8), connectivity=8
+    )
+    own_return = np.bincount(labels[returns], minlength=count) > 0
+    big_enough = own_return | (stats[:, cv2.CC_STAT_AREA] >= min_part_px)
+    big_enough[0] = False
+    candidates = big_enough[labels]
     reach = int(np.ceil(keep_distance_px / 2))
     joined = cv2.dilate(
-        (mask | returns).astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+        (candidates | returns).astype(np.uint8),
+        np.ones((2 * reach + 1, 2 * reach + 1), np.uint8),
     )
-    count, labels = cv2.connectedComponents(joined, connectivity=8)
-    anchored = np.bincount(labels[returns], minlength=count) > 0
+    pieces, piece_of = cv2.connectedComponents(joined, connectivity=8)
+    anchored = np.bincount(piece_of[returns], minlength=pieces) > 0
     anchored[0] = False
-    return mask & anchored[labels]
+    return candidates & anchored[piece_of]
 
 
 def resample_sparse(sparse: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -164,6 +178,7 @@ def complete(
     threshold: float = 0.5,
     zoom: float = 1.0,
     keep_distance_px: float = KEEP_DISTANCE_PX,
+    min_part_px: float = MIN_PART_PX,
 ) -> Completion:
     """Run ``model`` on the spacecraft's region of one frame. gray uint8/uint16 (H, W);
     sparse float32 (H, W) metres, 0 = no return.
@@ -171,8 +186,8 @@ def complete(
     ``zoom`` resamples the crop before the network so that its pixels match those the model
     was trained on (the model's focal length in pixels over this image's, e.g. 2 for a
     512 x 512 image of the paper's camera); the answer comes back at the image's resolution.
-    Foreground components without returns farther than ``keep_distance_px`` (model pixels)
-    from the spacecraft are dropped (``drop_specks``).
+    Foreground components without returns, smaller than ``min_part_px`` or farther than
+    ``keep_distance_px`` from the spacecraft (model pixels), are dropped (``drop_specks``).
     """
     if gray.shape != sparse.shape:
         raise ValueError(f"gray {gray.shape} and sparse {sparse.shape} differ in size")
@@ -187,7 +202,7 @@ def complete(
     probability[rows, cols] = prob_crop
     mask = np.zeros(gray.shape, bool)
     mask[rows, cols] = drop_specks(
-        prob_crop > threshold, sparse[rows, cols], keep_distance_px / zoom
+        prob_crop > threshold, sparse[rows, cols], keep_distance_px / zoom, min_part_px / zoom**2
     )
     depth = np.zeros(gray.shape, np.float32)
     depth[rows, cols] = depth_crop

@@ -141,5 +141,6 @@ def test_false_specks_are_stars_not_detached_parts_of_the_spacecraft():
     pred = gt > 0
     pred[5:7, 50:52] = True  # a star taken for the spacecraft
     pred[55, 55] = True  # another one
+    pred[38:52, 8:16] = True  # the antenna drawn too wide (36 % on it): an outline error
     assert false_specks(pred, sparse, gt) == 2
     assert false_specks(gt > 0, sparse, gt) == 0

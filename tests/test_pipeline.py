@@ -80,15 +80,20 @@ def test_stars_are_dropped_and_detached_parts_near_the_returns_kept():
     mask[95:97, 50:90] = True  # a boom 5 px from the body, no return
     mask[110:112, 50:90] = True  # and its continuation 13 px further: kept hop by hop
     mask[150:153, 170:173] = True  # a star 60 px away
-    mask[40, 95] = True  # a speck 10 px off the body's corner
-    kept = drop_specks(mask, sparse, keep_distance_px=16.0)
-    assert kept[50:90, 50:90].all() and kept[95:97].any() and kept[110:112, 50:90].all()
-    assert not kept[150:153, 170:173].any()
-    assert kept[40, 95]  # within reach of the body: taken for a part, kept
+    mask[40:42, 95:99] = True  # a detached part of 8 px, 5 px off the body's corner
+    mask[45, 45] = True  # a star of 1 px next to the body
+    kept = drop_specks(mask, sparse, keep_distance_px=16.0, min_part_px=8)
+    assert kept[50:90, 50:90].all() and kept[95:97, 50:90].all() and kept[110:112, 50:90].all()
+    assert kept[40:42, 95:99].all()
+    assert not kept[150:153, 170:173].any() and not kept[45, 45]
+    assert kept.sum() == 40 * 40 + 2 * 80 + 8
     edge_return = np.zeros_like(sparse)
     edge_return[49, 70] = 100.0  # a return one pixel outside the predicted outline
-    assert drop_specks(mask, edge_return, 16.0)[50:90, 50:90].all()
-    assert not drop_specks(mask, np.zeros_like(sparse), 16.0).any()
+    assert drop_specks(mask, edge_return, 16.0, 8)[50:90, 50:90].all()
+    assert not drop_specks(mask, np.zeros_like(sparse), 16.0, 8).any()
+    lone_return = np.zeros_like(sparse)
+    lone_return[45, 45] = 100.0  # a 1 px component holding a return is the spacecraft
+    assert drop_specks(mask, lone_return, 16.0, 8)[45, 45]
 
 
 def test_complete_drops_stars_from_the_mask_and_the_depth():
