@@ -72,3 +72,20 @@ def test_dockerignore_keeps_data_and_caches_out():
     ignored = set(uncommented(ROOT / ".dockerignore").split())
     assert {"data", "runs", "checkpoints", ".venv", ".git", "**/__pycache__"} <= ignored
     assert "training" not in ignored and "**/data" not in ignored  # training/data is code
+
+
+def test_every_package_on_disk_is_in_the_wheel():
+    """A subpackage missing from pyproject's list installs nowhere: the image then fails at its
+    import check (as it once did for service/routes), so the list must match the folders."""
+    import tomllib
+
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(setuptools["packages"])
+    folder_of = {name: ROOT / folder for name, folder in setuptools["package-dir"].items()}
+    on_disk = set()
+    for name, folder in folder_of.items():
+        for init in folder.rglob("__init__.py"):
+            relative = init.parent.relative_to(folder).parts
+            on_disk.add(".".join((name, *relative)))
+    assert on_disk - listed == set(), "add these to [tool.setuptools] packages"
+    assert listed - on_disk == set()
