@@ -14,6 +14,7 @@ from sdcnet.training.losses import (
     soft_iou_loss,
 )
 from sdcnet.training.model.cca import CrossChannelAttention
+from sdcnet.training.model.mask_refiner import MaskRefiner
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
 from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet, build_model
 
@@ -163,6 +164,26 @@ def test_soft_iou_loss_is_one_minus_the_iou_of_a_hard_mask():
     prob[..., 1:3, :] = 1.0  # 8 pixels predicted, 4 right: IOU 4 / 12
     assert soft_iou_loss(prob, gt).item() == pytest.approx(1 - 4 / 12)
     assert soft_iou_loss((gt > 0).float(), gt).item() == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("block", [1, 2, 4])
+def test_the_refiner_over_blocks_equals_its_convolutions_at_full_resolution(block):
+    """The reference: the two 3 x 3 convolutions run at full resolution with zero padding, as
+    the checkpoint's weights define them; the refiner computes them over space-to-depth blocks."""
+    torch.manual_seed(block)
+    refiner = MaskRefiner(block=block, hidden=5)
+    for p in refiner.parameters():
+        torch.nn.init.normal_(p)  # the correction starts at zero: give it weights
+    gray, logit = torch.rand(2, 1, 24, 32), torch.randn(2, 1, 24, 32)
+    conv1, conv2 = refiner.features[0], refiner.correction
+    hidden = torch.relu(
+        torch.nn.functional.conv2d(torch.cat([gray, logit], 1), conv1.weight, conv1.bias, padding=1)
+    )
+    expected = logit + torch.nn.functional.conv2d(hidden, conv2.weight, conv2.bias, padding=1)
+    unshuffle = torch.nn.functional.pixel_unshuffle
+    with torch.no_grad():
+        got = refiner(unshuffle(gray, block), unshuffle(logit, block))
+    torch.testing.assert_close(torch.nn.functional.pixel_shuffle(got, block), expected)
 
 
 def test_an_untrained_refiner_leaves_fsnets_mask_as_it_was():

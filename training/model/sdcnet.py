@@ -119,7 +119,11 @@ class SDCNet(nn.Module):
         self.fsnet = (
             FSNet(in_channels=fs_channels, out_channels=blocks) if config.use_fsnet else None
         )
-        self.refiner = MaskRefiner() if config.use_fsnet and config.mask_refiner else None
+        self.refiner = (
+            MaskRefiner(block=config.seg_factor)
+            if config.use_fsnet and config.mask_refiner
+            else None
+        )
         plane = config.depth_base == "plane"
         self.plane_fit = PlaneFitPrefill(factor=config.factor) if plane else None
         cells = config.factor**2 if config.subpixel else 1  # outputs per working pixel
@@ -176,10 +180,10 @@ class SDCNet(nn.Module):
             "gray": [blocks],
             "sparse": [returns, relative],
         }[self.config.fsnet_inputs]
-        logit = F.pixel_shuffle(self.fsnet(torch.cat(fs_in, 1)), seg)
+        logit_blocks = self.fsnet(torch.cat(fs_in, 1))
         if self.refiner is not None:
-            logit = self.refiner(x["gray"], logit)
-        return torch.sigmoid(logit)
+            logit_blocks = self.refiner(blocks, logit_blocks)
+        return torch.sigmoid(F.pixel_shuffle(logit_blocks, seg))
 
     def _regress(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
         """Dense depth in metres at full (padded) resolution: a base (the local plane fit, or
