@@ -13,6 +13,7 @@ from sdcnet.training.losses import (
     segmentation_loss,
     soft_iou_loss,
 )
+from sdcnet.training.model.blocks import space_to_depth
 from sdcnet.training.model.cca import CrossChannelAttention
 from sdcnet.training.model.mask_refiner import MaskRefiner
 from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
@@ -164,6 +165,14 @@ def test_soft_iou_loss_is_one_minus_the_iou_of_a_hard_mask():
     prob[..., 1:3, :] = 1.0  # 8 pixels predicted, 4 right: IOU 4 / 12
     assert soft_iou_loss(prob, gt).item() == pytest.approx(1 - 4 / 12)
     assert soft_iou_loss((gt > 0).float(), gt).item() == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("block", [2, 4])
+def test_space_to_depth_is_pixel_unshuffle_exactly(block):
+    x = torch.randn(3, 1, 16, 24) * 100
+    assert torch.equal(space_to_depth(x, block), torch.nn.functional.pixel_unshuffle(x, block))
+    with pytest.raises(ValueError, match="one channel"):
+        space_to_depth(torch.zeros(1, 2, 8, 8), block)
 
 
 @pytest.mark.parametrize("block", [1, 2, 4])

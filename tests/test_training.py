@@ -280,3 +280,17 @@ def test_fit_runs_unchanged_under_torchrun(tiny_dataset, tmp_path):
     rows = list(csv.DictReader((out / "log.csv").open()))
     assert [r["stage"] for r in rows] == ["1", "2"], "one log, written by rank 0 only"
     assert (out / "best.pt").exists()
+
+
+def test_train_samples_trains_on_that_many_frames_evenly_spread(tiny_dataset, tmp_path):
+    from sdcnet.dataset_format import SampleStore
+    from sdcnet.training.train import Trainer, config_from_preset
+
+    every = SampleStore(tiny_dataset).split("train")
+    assert len(every) == 2
+    config = config_from_preset("smoke", data=str(tiny_dataset), out=str(tmp_path / "r"))
+    assert Trainer(config).train_set.records == every
+    config = config_from_preset(
+        "smoke", data=str(tiny_dataset), out=str(tmp_path / "s"), train_samples=1
+    )
+    assert Trainer(config).train_set.records == every[:1]

@@ -48,7 +48,10 @@ def _recipe(configs: list[dict]) -> str:
         "tile",
         "lr",
         "weight_decay",
+        "gradient_loss",
+        "iou_loss",
         "samples_per_epoch",
+        "train_samples",
         "val_samples",
         "seed",
     )

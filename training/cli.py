@@ -211,6 +211,7 @@ def parser() -> argparse.ArgumentParser:
         ("gradient_loss", float),
         ("iou_loss", float),
         ("samples_per_epoch", int),
+        ("train_samples", int),
         ("val_samples", int),
         ("workers", int),
         ("seed", int),

@@ -75,6 +75,7 @@ class TrainConfig:
     gradient_loss: float = 1.0  # weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)
     iou_loss: float = 0.0  # weight of a soft-IOU term beside eq. 6's BCE (stage 1)
     samples_per_epoch: int | None = None  # None: the whole train split every epoch
+    train_samples: int | None = None  # None: every train frame; else this many, evenly spread
     val_samples: int | None = None  # None: the whole val split
     workers: int = 2
     seed: int = 0
@@ -161,6 +162,8 @@ class Trainer:
         train = self.store.split("train")
         if not train:
             raise ValueError(f"{config.data} has no 'train' samples")
+        if config.train_samples:
+            train = evenly_spread(train, config.train_samples)
         self.val_records = self.store.split("val") or train[:2]
         if config.val_samples:
             self.val_records = evenly_spread(self.val_records, config.val_samples)

@@ -25,6 +25,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from sdcnet.training.model.blocks import space_to_depth
 from sdcnet.training.model.prefill import near_wins_downsample
 
 #: Channels per cell, in order: presence c, then c times dx, dy, dx^2, dy^2, dx dy, and
@@ -108,7 +109,7 @@ class PlaneFitPrefill(nn.Module):
         nearest = near_wins_downsample(sparse, f)
         expanded = F.interpolate(nearest, scale_factor=f, mode="nearest")
         winner = ((sparse > 0) & ((sparse - expanded).abs() < 1e-3)).to(sparse.dtype)
-        sums = F.conv2d(F.pixel_unshuffle(winner, f), self.gather)
+        sums = F.conv2d(space_to_depth(winner, f), self.gather)
         count = sums[:, :1]
         present = (count > 0).to(sparse.dtype)
         mean = sums / count.clamp_min(1.0)  # ties (equal depths in one cell): mean offset

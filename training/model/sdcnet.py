@@ -27,6 +27,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from sdcnet.training.model.blocks import space_to_depth
 from sdcnet.training.model.fdcnet import FDCNet
 from sdcnet.training.model.fsnet import FSNet
 from sdcnet.training.model.mask_refiner import MaskRefiner
@@ -174,7 +175,7 @@ class SDCNet(nn.Module):
         seg = self.config.seg_factor
         returns = (x["sparse_seg"] > 0).to(x["gray"].dtype)
         relative = returns * (x["sparse_seg"] - x["d_ref"]) / self.config.depth_scale_m
-        blocks = F.pixel_unshuffle(x["gray"], seg)  # space-to-depth: full-resolution detail
+        blocks = space_to_depth(x["gray"], seg)  # space-to-depth: full-resolution detail
         fs_in = {
             "both": [blocks, returns, relative],
             "gray": [blocks],
@@ -201,7 +202,7 @@ class SDCNet(nn.Module):
             depth_in = [fitted * (plane - d_ref) / scale, fitted, *depth_in]
             base_lr = torch.where(weight > 0, plane, torch.where(filled > 0, filled, d_ref))
             base, unit = self._upsample(base_lr), c.residual_scale_m
-        gray = F.pixel_unshuffle(x["gray"], c.factor) if c.subpixel else x["gray_lr"]
+        gray = space_to_depth(x["gray"], c.factor) if c.subpixel else x["gray_lr"]
         out = self.fdcnet(gray, torch.cat(depth_in, 1))
         residual = F.pixel_shuffle(out, c.factor) if c.subpixel else self._upsample(out)
         return base + unit * residual
