@@ -19,6 +19,7 @@ NEEDS_TRAINING = {
     "test_deploy.py",  # checks the dataset Job's arguments with sdc-data's own parser
     "test_export.py",
     "test_generator.py",
+    "test_imports.py",  # imports the training code too
     "test_model.py",
     "test_plane_fit.py",
     "test_pose_eval.py",  # sdc-train pose: the generator's frames, the shipped model's clouds
