@@ -102,7 +102,12 @@ model: $(STAMP)
 ## split and real meshes), export it with its parity check, refresh the gallery and the card
 .PHONY: reports
 reports: $(STAMP)
-	$(VENV)/bin/sdc-train evaluate --checkpoint models/sdcnet.pt $(FIRST) --names sdcnet "first model" \
+	$(VENV)/bin/sdc-train ship --checkpoint models/sdcnet.pt --out runs/ablation/plane-alone.pt \
+		--zero fdcnet.head
+	$(VENV)/bin/sdc-train ship --checkpoint models/sdcnet.pt --out runs/ablation/no-refiner.pt \
+		--zero refiner.correction
+	$(VENV)/bin/sdc-train evaluate --checkpoint models/sdcnet.pt runs/ablation/plane-alone.pt $(FIRST) \
+		--names sdcnet "its plane fit alone" "first model" \
 		--data data/paper --split test --floor --limit 288 --out models/eval_test.json \
 		--title "Synthetic test split (18 unseen models, every fourth frame)"
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out models/sdcnet.onnx \
@@ -110,6 +115,10 @@ reports: $(STAMP)
 	$(VENV)/bin/sdc-train evaluate --onnx models/sdcnet.onnx --data data/paper --split test --limit 288 \
 		--out models/eval_test_onnx.json \
 		--title "Synthetic test split through onnxruntime (the service's numbers, every fourth frame)"
+	$(VENV)/bin/sdc-train evaluate --segmentation-only --data data/paper --split test --limit 288 \
+		--checkpoint models/sdcnet.pt runs/ablation/no-refiner.pt runs/v2/best.pt \
+		--names sdcnet "its refiner off" "before the FSNet fine-tune" --out models/eval_mask_ablation.json \
+		--title "Mask ablation, test split (every fourth frame): the refiner and the FSNet fine-tune"
 	$(VENV)/bin/sdc-train real --checkpoint models/sdcnet.pt $(FIRST) --names sdcnet "first model" \
 		--onnx models/sdcnet.onnx --floor --out docs/real
 	$(MAKE) card
@@ -155,6 +164,7 @@ ablation: $(STAMP)
 .PHONY: card
 card: $(STAMP)
 	$(VENV)/bin/sdc-train card --checkpoint models/sdcnet.pt --onnx models/sdcnet.onnx \
-		--report models/eval_test.json models/eval_test_onnx.json models/eval_ablation.json \
+		--report models/eval_test.json models/eval_test_onnx.json models/eval_mask_ablation.json \
+		models/eval_ablation.json \
 		$(wildcard models/eval_fsnet_inputs.json) \
 		docs/real/real_spacecraft.json --notes models/NOTES.md --out models/MODEL_CARD.md

@@ -294,3 +294,23 @@ def test_train_samples_trains_on_that_many_frames_evenly_spread(tiny_dataset, tm
         "smoke", data=str(tiny_dataset), out=str(tmp_path / "s"), train_samples=1
     )
     assert Trainer(config).train_set.records == every[:1]
+
+
+def test_ship_zero_makes_an_ablation_copy(run, tmp_path, capsys):
+    out = tmp_path / "plane-alone.pt"
+    best = str(run / "best.pt")
+    assert (
+        train_main(["ship", "--checkpoint", best, "--out", str(out), "--zero", "fdcnet.head"]) == 0
+    )
+    source, _ = load_checkpoint(run / "best.pt")
+    ablated, state = load_checkpoint(out)
+    theirs, ours = source.state_dict(), ablated.state_dict()
+    head = [k for k in ours if k.startswith("fdcnet.head.")]
+    assert head and all(not ours[k].any() for k in head)
+    assert any(theirs[k].any() for k in head)
+    assert all(torch.equal(theirs[k], ours[k]) for k in ours if k not in head)
+    assert state["zeroed"] == ["fdcnet.head"]
+    bad = ["ship", "--checkpoint", best, "--out", str(tmp_path / "x.pt"), "--zero", "no.such"]
+    assert train_main(bad) == 2
+    assert "no weights under that prefix" in capsys.readouterr().err
+    assert not (tmp_path / "x.pt").exists()

@@ -296,6 +296,14 @@ def parser() -> argparse.ArgumentParser:
     s = sub.add_parser("ship", help="copy a checkpoint without the optimiser state (to commit)")
     s.add_argument("--checkpoint", required=True)
     s.add_argument("--out", required=True)
+    s.add_argument(
+        "--zero",
+        nargs="*",
+        default=[],
+        metavar="PREFIX",
+        help="ablation copies: set the weights under these prefixes to 0, e.g. fdcnet.head "
+        "(depth = the plane fit alone) or refiner.correction (FSNet without its refiner)",
+    )
     s.set_defaults(func=cmd_ship)
 
     c = sub.add_parser("card", help="write the model card from a checkpoint and evaluation reports")
@@ -394,11 +402,20 @@ def _pose_results(args, methods, real_config, real, stores) -> dict:
 
 def cmd_ship(args: argparse.Namespace) -> int:
     model, state = load_checkpoint(args.checkpoint)
+    weights = model.state_dict()
+    for prefix in args.zero:
+        chosen = [k for k in weights if k.startswith(prefix + ".") or k == prefix]
+        if not chosen:
+            raise ValueError(f"--zero {prefix}: no weights under that prefix in {args.checkpoint}")
+        for key in chosen:
+            weights[key].zero_()
     keep = {
         k: v
         for k, v in state.items()
         if k not in ("model", "model_config", "optimizer", "scheduler")
     }
+    if args.zero:
+        keep["zeroed"] = list(args.zero)  # an ablation copy says so
     save_checkpoint(Path(args.out), model, **keep)
     print(f"wrote {args.out} ({Path(args.out).stat().st_size / 1e6:.2f} MB)")
     return 0
