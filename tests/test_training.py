@@ -297,7 +297,7 @@ def test_train_samples_trains_on_that_many_frames_evenly_spread(tiny_dataset, tm
 
 
 def test_ship_zero_makes_an_ablation_copy(run, tmp_path, capsys):
-    out = tmp_path / "plane-alone.pt"
+    out = tmp_path / "new-folder" / "plane-alone.pt"  # made if missing
     best = str(run / "best.pt")
     assert (
         train_main(["ship", "--checkpoint", best, "--out", str(out), "--zero", "fdcnet.head"]) == 0

@@ -19,6 +19,7 @@ from sdcnet.training.model.sdcnet import ModelConfig, SDCNet
 def save_checkpoint(path: Path, model: SDCNet, **extra) -> None:
     """Atomic save of the model's weights and config plus any ``extra`` (JSON-able or tensors)."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     torch.save({"model": model.state_dict(), "model_config": model.config.to_dict(), **extra}, tmp)
     tmp.replace(path)
