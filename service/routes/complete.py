@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
+from fastapi.dependencies.models import Dependant
 from fastapi.responses import Response
 from pydantic import WithJsonSchema
 from starlette.concurrency import run_in_threadpool
@@ -19,6 +21,12 @@ from sdcnet.service.schemas import CompletionResponse, ResponseFormat
 router = APIRouter(tags=["inference"])
 
 
+def _form_fields(dependant: Dependant) -> set[str]:
+    """Names of the form fields an endpoint takes, its dependencies' included."""
+    own = {field.alias for field in dependant.body_params}
+    return own.union(*(_form_fields(sub) for sub in dependant.dependencies))
+
+
 async def strict_form(request: Request) -> None:
     """FastAPI dependency: 422 for a form field the endpoint does not take or one sent twice.
 
@@ -26,7 +34,7 @@ async def strict_form(request: Request) -> None:
     the last of the second (two ``gray`` files): both are a client's mistake worth naming.
     The form is the one FastAPI already parsed (Starlette caches it).
     """
-    known = {field.alias for field in request.scope["route"].dependant.body_params}
+    known = _form_fields(request.scope["route"].dependant)
     names = [name for name, _ in (await request.form()).multi_items()]
     unknown = sorted(set(names) - known)
     repeated = sorted({name for name in names if names.count(name) > 1} & known)
@@ -88,17 +96,35 @@ ReturnsFile = optional_file(
 )
 
 
-async def form_request(
-    gray: UploadFile, sparse: UploadFile | None, returns: UploadFile | None, **fields: Any
+async def frame_form(
+    gray: GrayFile,
+    sparse: SparseFile = None,
+    returns: ReturnsFile = None,
+    depth_scale: DepthScale = None,
+    fx: FocalLength = None,
+    fy: FocalLength = None,
+    cx: PrincipalPoint = None,
+    cy: PrincipalPoint = None,
+    outlier_removal: Annotated[
+        bool, Form(description="statistical outlier removal on the point cloud (Fig. 7)")
+    ] = False,
 ) -> CompletionRequest:
-    """The uploaded files' bytes and the form's other ``fields``, as ``decode_form`` takes
-    them (``POST /complete`` and ``POST /pose``)."""
+    """FastAPI dependency: one frame's form fields (``POST /complete`` and ``POST /pose``),
+    the uploaded files read, as ``decode_form`` takes them."""
     return CompletionRequest(
         gray=await gray.read(),
         sparse=None if sparse is None else await sparse.read(),
         returns=None if returns is None else await returns.read(),
-        **fields,
+        depth_scale=depth_scale,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        outlier_removal=outlier_removal,
     )
+
+
+FrameForm = Annotated[CompletionRequest, Depends(frame_form)]
 
 
 @router.post(
@@ -119,17 +145,7 @@ async def complete(
     request: Request,
     engine: EngineDep,
     settings: SettingsDep,
-    gray: GrayFile,
-    sparse: SparseFile = None,
-    returns: ReturnsFile = None,
-    depth_scale: DepthScale = None,
-    fx: FocalLength = None,
-    fy: FocalLength = None,
-    cx: PrincipalPoint = None,
-    cy: PrincipalPoint = None,
-    outlier_removal: Annotated[
-        bool, Form(description="statistical outlier removal on the point cloud (Fig. 7)")
-    ] = False,
+    frame: FrameForm,
     response_format: Annotated[
         ResponseFormat, Query(alias="format", description="json, npz or ply")
     ] = ResponseFormat.json,
@@ -140,18 +156,7 @@ async def complete(
     returns in a few kilobytes instead of a 4 MiB map for a 1024 x 1024 frame; the answers
     are identical). Intrinsics (pixels) not given are the model's, scaled to the image size.
     """
-    req = await form_request(
-        gray,
-        sparse,
-        returns,
-        depth_scale=depth_scale,
-        fx=fx,
-        fy=fy,
-        cx=cx,
-        cy=cy,
-        outlier_removal=outlier_removal,
-        format=response_format,
-    )
+    req = replace(frame, format=response_format)
     result = await run_in_threadpool(answer, engine, req, settings.max_pixels)
     request.app.state.metrics.observe_phases(result.timer.seconds)
     headers = {"Server-Timing": result.timer.server_timing()}

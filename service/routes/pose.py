@@ -15,16 +15,7 @@ from sdcnet.service.errors import ERROR_RESPONSES
 from sdcnet.service.inference import SERVER_TIMING_HEADER
 from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose, find_target
 from sdcnet.service.pose_schemas import PoseResponse, TargetGeometry
-from sdcnet.service.routes.complete import (
-    DepthScale,
-    FocalLength,
-    GrayFile,
-    PrincipalPoint,
-    ReturnsFile,
-    SparseFile,
-    form_request,
-    strict_form,
-)
+from sdcnet.service.routes.complete import FrameForm, strict_form
 from sdcnet.service.schemas import ErrorBody
 
 router = APIRouter(tags=["pose"])
@@ -61,7 +52,7 @@ async def pose(
     engine: EngineDep,
     settings: SettingsDep,
     targets: TargetsDep,
-    gray: GrayFile,
+    frame: FrameForm,
     target: Annotated[str, Form(description="a known target's name (GET /model lists them)")],
     init: Annotated[
         str | None,
@@ -70,16 +61,6 @@ async def pose(
             '3} or {"quaternion_wxyz": 4, "t": 3}; without it the pose is found from scratch'
         ),
     ] = None,
-    sparse: SparseFile = None,
-    returns: ReturnsFile = None,
-    depth_scale: DepthScale = None,
-    fx: FocalLength = None,
-    fy: FocalLength = None,
-    cx: PrincipalPoint = None,
-    cy: PrincipalPoint = None,
-    outlier_removal: Annotated[
-        bool, Form(description="statistical outlier removal on the completed cloud first")
-    ] = False,
 ) -> JSONResponse:
     """The pose of a known target, p_camera = R p_target + t (camera x right, y down,
     z forward; metres), from one frame: completed as by `POST /complete`, then registered.
@@ -88,21 +69,7 @@ async def pose(
     the LIDAR's 10 Hz), falling back to the search when the refinement explains the frame
     poorly. A symmetric target's answer says `ambiguous` and lists the alternatives.
     """
-    req = PoseRequest(
-        frame=await form_request(
-            gray,
-            sparse,
-            returns,
-            depth_scale=depth_scale,
-            fx=fx,
-            fy=fy,
-            cx=cx,
-            cy=cy,
-            outlier_removal=outlier_removal,
-        ),
-        target=target,
-        init=init,
-    )
+    req = PoseRequest(frame=frame, target=target, init=init)
     answer, timer = await run_in_threadpool(answer_pose, engine, targets, req, settings.max_pixels)
     request.app.state.metrics.observe_phases(timer.seconds)
     return JSONResponse(
