@@ -40,6 +40,14 @@ DEFAULT_URL = os.environ.get("SDCNET_URL", "http://127.0.0.1:8000")
 Source = str | Path | bytes | np.ndarray
 
 
+def _given_intrinsics(
+    fx: float | None, fy: float | None, cx: float | None, cy: float | None
+) -> dict[str, float]:
+    """The intrinsics the caller gave (pixels); those left out are the model's, on the server."""
+    given = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
+    return {k: float(v) for k, v in given.items() if v is not None}
+
+
 class ClientError(Exception):
     """Base of what the client raises; the message is meant for a person."""
 
@@ -333,8 +341,7 @@ class Client:
         """
         image = gray_array(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)
-        options = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
-        parameters: dict[str, Any] = {k: float(v) for k, v in options.items() if v is not None}
+        parameters: dict[str, Any] = _given_intrinsics(fx, fy, cx, cy)
         parameters["outlier_removal"] = outlier_removal
         body, headers = protocol.request_body(image, listed, parameters, float16_depth)
         start = time.perf_counter()
@@ -369,8 +376,7 @@ class Client:
         returns travel as a list, the gray image as its file (a PNG of an array)."""
         image, gray_file = _gray_file(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)
-        options = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
-        fields = {k: repr(float(v)) for k, v in options.items() if v is not None}
+        fields = {k: repr(v) for k, v in _given_intrinsics(fx, fy, cx, cy).items()}
         fields["outlier_removal"] = "true" if outlier_removal else "false"
         fields["target"] = target
         if init is not None:
