@@ -43,7 +43,8 @@ Source = str | Path | bytes | np.ndarray
 def _given_intrinsics(
     fx: float | None, fy: float | None, cx: float | None, cy: float | None
 ) -> dict[str, float]:
-    """The intrinsics the caller gave (pixels); those left out are the model's, on the server."""
+    """The intrinsics the caller gave (pixels); those left out are the service's defaults (its
+    camera's, ``sdc-serve --camera``, else the model's)."""
     given = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
     return {k: float(v) for k, v in given.items() if v is not None}
 
@@ -336,8 +337,9 @@ class Client:
         return) as an array, a ``.npy`` file or a 16-bit PNG with ``depth_scale`` (metres per
         unit), or a list as an (N, 3) array or ``.npy`` or a CSV file (``row,col,z_m``); or
         ``returns``, an (N, 3) array (row, column, Z metres). Intrinsics in pixels; those not
-        given are the model's, scaled to the image size. ``float16_depth`` halves the depth's
-        bytes at a precision of 8 mm (``sdcnet.compact``); by default the depth is exact.
+        given are the service's camera's (``sdc-serve --camera``), else the model's, scaled to
+        the image size. ``float16_depth`` halves the depth's bytes at a precision of 8 mm
+        (``sdcnet.compact``); by default the depth is exact.
         """
         image = gray_array(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)

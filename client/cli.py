@@ -54,7 +54,9 @@ def _frame_options() -> argparse.ArgumentParser:
     frame = argparse.ArgumentParser(add_help=False)
     for name in ("fx", "fy", "cx", "cy"):
         frame.add_argument(
-            f"--{name}", type=float, help="intrinsics, pixels (default: the model's, scaled)"
+            f"--{name}",
+            type=float,
+            help="intrinsics, pixels (default: the service's camera's, else the model's, scaled)",
         )
     frame.add_argument(
         "--depth-scale", type=float, help="metres per unit of a 16-bit PNG sparse map"

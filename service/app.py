@@ -19,6 +19,7 @@ from fastapi import FastAPI
 from sdcnet import __version__
 from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.service.admission import Admission
+from sdcnet.service.camera import ServiceCamera, configured_camera
 from sdcnet.service.errors import install_error_handlers
 from sdcnet.service.inference import Engine, self_test
 from sdcnet.service.metrics import ServiceMetrics
@@ -89,10 +90,12 @@ def create_app(
     settings: Settings | None = None,
     model: OnnxModel | None = None,
     targets: dict[str, Target] | None = None,
+    camera: ServiceCamera | None = None,
 ) -> FastAPI:
     """The service. ``settings`` default to the environment; ``model`` (already loaded)
     defaults to loading ``settings.model_path`` at start-up, ``targets`` (already prepared)
-    to preparing those of ``settings.targets``."""
+    to preparing those of ``settings.targets``, ``camera`` (already loaded) to loading
+    ``settings.camera``."""
     settings = settings or Settings()
     service_metrics = ServiceMetrics()
 
@@ -115,6 +118,7 @@ def create_app(
             settings.max_in_flight,
         )
         app.state.targets = configured_targets(settings) if targets is None else targets
+        app.state.camera = configured_camera(settings) if camera is None else camera
         app.state.engine = Engine(loaded)
         yield
         app.state.engine = None  # not ready while shutting down
@@ -129,6 +133,7 @@ def create_app(
     app.state.metrics = service_metrics
     app.state.engine = None
     app.state.targets = {}
+    app.state.camera = None
     install_error_handlers(app)
     app.add_middleware(
         Admission,

@@ -1,7 +1,7 @@
 """``sdc-serve``: the inference service under uvicorn. Flags override ``SDCNET_*`` variables.
 
-The model (and the targets) are loaded before the server starts, so a missing or broken file
-is one clear line and exit status 2, not a traceback.
+The camera file, the model and the targets are loaded before the server starts, so a missing
+or broken file is one clear line and exit status 2, not a traceback.
 """
 
 from __future__ import annotations
@@ -16,9 +16,11 @@ from pathlib import Path
 import uvicorn
 from pydantic import ValidationError
 
+from sdcnet.calibration import CalibrationError
 from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.runtime import ModelLoadError
 from sdcnet.service.app import create_app, load_model
+from sdcnet.service.camera import configured_camera
 from sdcnet.service.pose import configured_targets
 from sdcnet.service.settings import Settings
 from sdcnet.targets import TargetError
@@ -52,6 +54,7 @@ FLAGS = [
     ("--provider", "provider", str),
     ("--threads", "threads", int),
     ("--targets", "targets", Path),
+    ("--camera", "camera", Path),
     ("--spin-wait", "spin_wait", str),  # true / false, parsed by the settings
     ("--host", "host", str),
     ("--port", "port", int),
@@ -101,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def serve(args: argparse.Namespace) -> int:
-    """Load the model, then serve until stopped; 2 with one line for a bad setting or model."""
+    """Load the camera, the model and the targets, then serve until stopped; 2 with one line
+    for a bad setting or file."""
     limit_malloc_arenas()
     given = {setting: getattr(args, setting) for _, setting, _ in FLAGS}
     try:
@@ -113,15 +117,16 @@ def serve(args: argparse.Namespace) -> int:
         level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     try:
+        camera = configured_camera(settings)
         model = load_model(settings)
         targets = configured_targets(settings)
-    except (ModelLoadError, TargetError) as exc:
+    except (CalibrationError, ModelLoadError, TargetError) as exc:
         print(f"sdc-serve: {exc}", file=sys.stderr)
         return 2
     logger.info("execution provider: %s (%d threads)", model.provider, model.threads)
     try:
         uvicorn.run(
-            create_app(settings, model, targets),
+            create_app(settings, model, targets, camera),
             host=settings.host,
             port=settings.port,
             log_level=settings.log_level,

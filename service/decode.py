@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from sdcnet.camera import Intrinsics
 from sdcnet.pipeline import to_gray
 from sdcnet.returns import ReturnsError, dense_from_returns, parse_returns_csv
 from sdcnet.service.errors import ApiError
@@ -56,7 +57,8 @@ class CompletionRequest:
 class Frame:
     """One request's validated inputs, whatever protocol brought them: gray uint8/uint16
     (H, W); sparse float32 (H, W) metres, 0 = no return, at least one return; intrinsics in
-    pixels, ``None`` = the model's, scaled to the image."""
+    pixels, ``None`` = the default: ``camera``, the configured camera's at the frame's size
+    (``sdcnet.service.camera``), else the model's, scaled to the image."""
 
     gray: np.ndarray
     sparse: np.ndarray
@@ -65,6 +67,7 @@ class Frame:
     cx: float | None = None
     cy: float | None = None
     outlier_removal: bool = False
+    camera: Intrinsics | None = None
 
 
 def decode_form(req: CompletionRequest, max_pixels: int) -> Frame:

@@ -1,4 +1,5 @@
-"""FastAPI dependencies the routers share: the settings, the loaded model, the targets."""
+"""FastAPI dependencies the routers share: the settings, the loaded model, the targets, the
+camera."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from typing import Annotated
 
 from fastapi import Depends, Request
 
+from sdcnet.service.camera import ServiceCamera
 from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import Engine
 from sdcnet.service.settings import Settings, get_settings
@@ -33,6 +35,12 @@ async def get_targets(request: Request) -> dict[str, Target]:
     return request.app.state.targets
 
 
+async def get_camera(request: Request) -> ServiceCamera | None:
+    """FastAPI dependency: the camera of ``sdc-serve --camera``, or None."""
+    return request.app.state.camera
+
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 TargetsDep = Annotated[dict[str, Target], Depends(get_targets)]
 EngineDep = Annotated[Engine, Depends(get_engine)]
+CameraDep = Annotated[ServiceCamera | None, Depends(get_camera)]

@@ -152,7 +152,7 @@ ERROR_RESPONSES: dict[int | str, dict] = {
         413: "image above the pixel limit or body above the byte limit",
         415: "file type not accepted",
         422: "invalid, unknown or repeated field: dtype, shape, depth values, missing field, "
-        "unknown format",
+        "unknown format, a frame that does not fit the camera",
         503: "overloaded or not ready; Retry-After says when to retry",
     }.items()
 }

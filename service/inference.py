@@ -24,6 +24,7 @@ from sdcnet.compact import mask_window
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
 from sdcnet.runtime import ModelLoadError, OnnxModel
+from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, decode_form
 from sdcnet.service.encode import encode
 from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, FrameSummary, Timings
@@ -77,14 +78,18 @@ class Engine:
         self._lock = threading.Lock()
 
     def complete(
-        self, gray: np.ndarray, sparse: np.ndarray, zoom: float, timer: PhaseTimer
+        self, gray: np.ndarray, sparse: np.ndarray, focal_px: float, timer: PhaseTimer
     ) -> Completion:
-        """Complete a frame, its crop resampled by ``zoom`` to the model's pixel scale."""
+        """Complete a frame of a camera of focal length ``focal_px`` (pixels), on the model's
+        working-pixel budget (``sdcnet.pipeline``)."""
         with timer("queue"):
             self._lock.acquire()
         try:
             with timer("inference"):
-                return complete(self.model.run, gray, sparse, self.model.stride, zoom=zoom)
+                info = self.model.info
+                return complete(
+                    self.model.run, gray, sparse, focal_px, info.stride, info.work_pixels
+                )
         finally:
             self._lock.release()
 
@@ -100,7 +105,7 @@ def self_test(model: OnnxModel) -> None:
     sparse = np.zeros_like(gray, dtype=np.float32)
     sparse[SELF_TEST_SIZE // 2, SELF_TEST_SIZE // 2] = 100.0
     try:
-        result = complete(model.run, gray, sparse, model.stride)
+        result = complete(model.run, gray, sparse, 1000.0, model.stride, model.info.work_pixels)
     except Exception as exc:  # onnxruntime and numpy raise many types; all mean "cannot serve"
         raise ModelLoadError(
             f"{model.path} loads but cannot complete a {SELF_TEST_SIZE} x {SELF_TEST_SIZE} "
@@ -151,8 +156,10 @@ class Completed:
 
 
 def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Frame) -> Intrinsics:
-    """The request's intrinsics; each value not given is the model's, scaled to the image."""
-    base = default.scaled(width, height)
+    """The request's intrinsics; each value not given is the configured camera's
+    (``frame.camera``, at the image's size), else the model's ``default`` scaled to the
+    image."""
+    base = frame.camera or default.scaled(width, height)
     return Intrinsics(
         base.fx if frame.fx is None else frame.fx,
         base.fy if frame.fy is None else frame.fy,
@@ -163,22 +170,9 @@ def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Fram
     )
 
 
-#: Widest resampling to the model's pixel scale (model fx / image fx) the service applies.
-MAX_ZOOM = 4.0
-
-
-def pixel_scale(model_fx: float, fx: float, pixels: int, max_pixels: int) -> float:
-    """How much to resample the crop so its pixels match the model's (model fx / image fx),
-    kept within [1/MAX_ZOOM, MAX_ZOOM] and so that the resampled frame stays under
-    ``max_pixels``: odd intrinsics degrade the answer, never the service."""
-    zoom = model_fx / fx
-    return float(np.clip(zoom, 1 / MAX_ZOOM, min(MAX_ZOOM, (max_pixels / pixels) ** 0.5)))
-
-
 def complete_frame(
     engine: Engine,
     frame: Frame,
-    max_pixels: int,
     timer: PhaseTimer,
     cloud_phase: str = "encode",
 ) -> Completed:
@@ -187,8 +181,7 @@ def complete_frame(
     and what ``POST /pose`` registers."""
     height, width = frame.gray.shape
     K = request_intrinsics(engine.model.info.intrinsics, width, height, frame)
-    zoom = pixel_scale(engine.model.info.intrinsics.fx, K.fx, width * height, max_pixels)
-    result = engine.complete(frame.gray, frame.sparse, zoom, timer)
+    result = engine.complete(frame.gray, frame.sparse, K.fx, timer)
     with timer(cloud_phase):
         valid = result.mask & (result.depth > 0)
         kept = statistical_outliers(result.depth, valid, K) if frame.outlier_removal else valid
@@ -214,12 +207,15 @@ class Answer:
     media_type: str = "application/octet-stream"
 
 
-def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
-    """Decode, complete, encode one ``POST /complete``; raises ``ApiError`` for bad input."""
+def answer(
+    engine: Engine, req: CompletionRequest, max_pixels: int, camera: ServiceCamera | None = None
+) -> Answer:
+    """Decode (into the ``camera``'s frame), complete, encode one ``POST /complete``; raises
+    ``ApiError`` for bad input."""
     timer = PhaseTimer()
     with timer("decode"):
-        frame = decode_form(req, max_pixels)
-    done = complete_frame(engine, frame, max_pixels, timer)
+        frame = camera_frame(decode_form(req, max_pixels), camera)
+    done = complete_frame(engine, frame, timer)
     with timer("encode"):
         encoded = encode(req.format, done.depth, done.mask.astype(np.uint8), done.points)
     return Answer(encoded.finish(done.summary(engine.model, timer)), timer)

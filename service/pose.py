@@ -2,9 +2,10 @@
 known target registered to the completed cloud (``sdcnet.registration``), in a worker thread.
 
 decode (``service.decode.decode_form``: the same form, sparse map or returns list, as
-``POST /complete``) -> queue -> inference -> cloud (``service.inference.complete_frame``, the
-path every protocol shares, then the LIDAR returns back-projected too) -> registration. The
-target and ``init`` are checked before any image is decoded.
+``POST /complete``, then ``service.camera.camera_frame``) -> queue -> inference -> cloud
+(``service.inference.complete_frame``, the path every protocol shares, then the LIDAR returns
+back-projected too) -> registration. The target and ``init`` are checked before any image is
+decoded.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, parse_pose
+from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, decode_form
 from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
@@ -125,15 +127,20 @@ POSE_PHASES = ("decode", "queue", "inference", "cloud", "registration")
 
 
 def answer_pose(
-    engine: Engine, targets: dict[str, Target], req: PoseRequest, max_pixels: int
+    engine: Engine,
+    targets: dict[str, Target],
+    req: PoseRequest,
+    max_pixels: int,
+    camera: ServiceCamera | None = None,
 ) -> tuple[PoseResponse, PhaseTimer]:
-    """Check, complete, register one request; raises ``ApiError`` for bad input."""
+    """Check, complete (in the ``camera``'s frame), register one request; raises ``ApiError``
+    for bad input."""
     target = find_target(targets, req.target)
     init = read_init(req.init)
     timer = PhaseTimer()
     with timer("decode"):
-        frame = decode_form(req.frame, max_pixels)
-    done = complete_frame(engine, frame, max_pixels, timer, cloud_phase="cloud")
+        frame = camera_frame(decode_form(req.frame, max_pixels), camera)
+    done = complete_frame(engine, frame, timer, cloud_phase="cloud")
     with timer("cloud"):
         returns = back_project(frame.sparse, frame.sparse > 0, done.intrinsics)
     with timer("registration"):

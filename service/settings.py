@@ -59,6 +59,12 @@ class Settings(BaseSettings):
         description="folder of known targets' meshes (STL, OBJ, PLY, glTF/GLB) with a "
         "manifest.json of {file, longest_m} entries, for POST /pose; default: none",
     )
+    camera: Path | None = Field(
+        default=None,
+        description="the camera's calibration file (OpenCV YAML/JSON/XML, ROS camera_info, or "
+        "JSON of fx, fy, cx, cy, width, height): the intrinsics requests default to, and the "
+        "lens distortion taken out of every frame; default: none, the model's camera",
+    )
     host: str = Field(default="127.0.0.1", description="address to bind")
     port: int = Field(default=8000, ge=0, le=65535, description="TCP port (0: any free port)")
     max_in_flight: int = Field(

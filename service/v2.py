@@ -34,6 +34,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from sdcnet.compact import crop, fp16_residuals, pack_mask
+from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import Frame, frame_of
 from sdcnet.service.deps import MODEL_NAME
 from sdcnet.service.errors import ApiError
@@ -427,15 +428,22 @@ def encode_outputs(
     return entries, chunks
 
 
-def answer(engine: Engine, body: bytes, header_length: str | None, max_pixels: int) -> Answer:
-    """Parse, complete, encode one inference request; raises ``ApiError`` for bad input."""
+def answer(
+    engine: Engine,
+    body: bytes,
+    header_length: str | None,
+    max_pixels: int,
+    camera: ServiceCamera | None = None,
+) -> Answer:
+    """Parse (into the ``camera``'s frame), complete, encode one inference request; raises
+    ``ApiError`` for bad input."""
     timer = PhaseTimer()
     with timer("decode"):
         header, binary = split_body(body, header_length)
         request = parse_request(header)
         outputs = requested_outputs(request)
-        frame = frame_of_request(request, binary, max_pixels)
-    done = complete_frame(engine, frame, max_pixels, timer)
+        frame = camera_frame(frame_of_request(request, binary, max_pixels), camera)
+    done = complete_frame(engine, frame, timer)
     parameters = request.parameters or InferParameters()
     with timer("encode"):
         entries, chunks = encode_outputs(outputs, done, parameters.binary_data_output)

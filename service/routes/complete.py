@@ -12,7 +12,7 @@ from pydantic import WithJsonSchema
 from starlette.concurrency import run_in_threadpool
 
 from sdcnet.service.decode import CompletionRequest
-from sdcnet.service.deps import EngineDep, SettingsDep
+from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep
 from sdcnet.service.encode import MEDIA_TYPES
 from sdcnet.service.errors import ERROR_RESPONSES, ApiError
 from sdcnet.service.inference import SERVER_TIMING_HEADER, answer
@@ -74,7 +74,7 @@ def optional_file(description: str) -> Any:
     ]
 
 
-_DEFAULT_K = "default: the model's, scaled to the image size"
+_DEFAULT_K = "default: the camera's (sdc-serve --camera), else the model's; scaled to the image"
 FocalLength = optional_number(f"pixels; {_DEFAULT_K}", gt=0)
 PrincipalPoint = optional_number(f"pixels; {_DEFAULT_K}")
 #: Metres per unit of a 16-bit PNG sparse map, bounded so that every depth stays finite and
@@ -145,6 +145,7 @@ async def complete(
     request: Request,
     engine: EngineDep,
     settings: SettingsDep,
+    camera: CameraDep,
     frame: FrameForm,
     response_format: Annotated[
         ResponseFormat, Query(alias="format", description="json, npz or ply")
@@ -154,10 +155,12 @@ async def complete(
 
     The LIDAR returns come as a dense map (`sparse`) or as a list (`returns`: a few hundred
     returns in a few kilobytes instead of a 4 MiB map for a 1024 x 1024 frame; the answers
-    are identical). Intrinsics (pixels) not given are the model's, scaled to the image size.
+    are identical). Intrinsics (pixels) not given are the camera's (`sdc-serve --camera`; the
+    frame is then undistorted if it has lens distortion), else the model's, scaled to the
+    image size.
     """
     req = replace(frame, format=response_format)
-    result = await run_in_threadpool(answer, engine, req, settings.max_pixels)
+    result = await run_in_threadpool(answer, engine, req, settings.max_pixels, camera)
     request.app.state.metrics.observe_phases(result.timer.seconds)
     headers = {"Server-Timing": result.timer.server_timing()}
     if response_format is not ResponseFormat.json:

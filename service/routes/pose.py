@@ -10,7 +10,7 @@ from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from sdcnet.service.deps import EngineDep, SettingsDep, TargetsDep
+from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, TargetsDep
 from sdcnet.service.errors import ERROR_RESPONSES
 from sdcnet.service.inference import SERVER_TIMING_HEADER
 from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose, find_target
@@ -52,6 +52,7 @@ async def pose(
     engine: EngineDep,
     settings: SettingsDep,
     targets: TargetsDep,
+    camera: CameraDep,
     frame: FrameForm,
     target: Annotated[str, Form(description="a known target's name (GET /model lists them)")],
     init: Annotated[
@@ -70,7 +71,9 @@ async def pose(
     poorly. A symmetric target's answer says `ambiguous` and lists the alternatives.
     """
     req = PoseRequest(frame=frame, target=target, init=init)
-    answer, timer = await run_in_threadpool(answer_pose, engine, targets, req, settings.max_pixels)
+    answer, timer = await run_in_threadpool(
+        answer_pose, engine, targets, req, settings.max_pixels, camera
+    )
     request.app.state.metrics.observe_phases(timer.seconds)
     return JSONResponse(
         answer.model_dump(), headers={"Server-Timing": timer.server_timing(POSE_PHASES)}

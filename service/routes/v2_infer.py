@@ -14,7 +14,7 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from sdcnet.service import v2
-from sdcnet.service.deps import MODEL_NAME, EngineDep, SettingsDep
+from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep
 from sdcnet.service.errors import V2_ERROR_RESPONSES, ApiError
 from sdcnet.service.inference import SERVER_TIMING_HEADER
 
@@ -60,10 +60,12 @@ _HEADER_LENGTH_DOC = {
     },
     openapi_extra={"requestBody": _REQUEST_BODY},
 )
-async def infer(request: Request, engine: EngineDep, settings: SettingsDep) -> Response:
+async def infer(
+    request: Request, engine: EngineDep, settings: SettingsDep, camera: CameraDep
+) -> Response:
     """Complete one frame. Inputs: `gray` (UINT8 or UINT16, [H, W]) and `sparse` (FP32,
     [H, W], metres, 0 = no return) or `returns` (FP32, [N, 3]: row, column, Z metres).
-    Parameters: `fx`, `fy`, `cx`, `cy` (pixels; default: the model's, scaled to the image),
+    Parameters: `fx`, `fy`, `cx`, `cy` (pixels; default: the camera's, else the model's),
     `outlier_removal`. Outputs: `depth` (FP32, [H, W], metres, 0 off the mask), `mask` (UINT8,
     [H, W]), `points` (FP32, [N, 3], camera frame, metres); the summary of `POST /complete` is
     in the answer's parameters. Errors: `{"error": "..."}`, the code in `Sdcnet-Error-Code`.
@@ -77,7 +79,9 @@ async def infer(request: Request, engine: EngineDep, settings: SettingsDep) -> R
         )
     body = await request.body()
     header_length = request.headers.get(v2.HEADER_LENGTH)
-    answer = await run_in_threadpool(v2.answer, engine, body, header_length, settings.max_pixels)
+    answer = await run_in_threadpool(
+        v2.answer, engine, body, header_length, settings.max_pixels, camera
+    )
     request.app.state.metrics.observe_phases(answer.timer.seconds)
     headers = {"Server-Timing": answer.timer.server_timing(), **answer.headers}
     return Response(answer.body, media_type=answer.media_type, headers=headers)
