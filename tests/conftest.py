@@ -26,6 +26,9 @@ NEEDS_TRAINING = {
     "test_real_meshes.py",
     "test_sequence.py",  # sdc-data sequence
     "test_training.py",
+    "test_worlds.py",  # the generator's worlds
+    "test_lidar.py",
+    "test_backgrounds.py",
 }
 
 

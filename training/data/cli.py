@@ -16,6 +16,7 @@ import numpy as np
 from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.returns import returns_from_dense, write_returns_csv
+from sdcnet.training.data.conditions import WORLDS
 from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
 from sdcnet.training.data.preview import preview
 from sdcnet.training.data.scene import SceneConfig
@@ -58,6 +59,8 @@ def _config(args: argparse.Namespace) -> GenerateConfig:
         split=args.split,
         meshes=meshes,
         mesh_split=args.mesh_split,
+        world=args.world,
+        only_splits=tuple(args.only_splits),
     )
 
 
@@ -112,7 +115,9 @@ def cmd_preview(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     """Seconds per sample on one core and the LIDAR density, over a few samples."""
-    config = GenerateConfig(models=args.models, views=args.views, size=args.size, seed=args.seed)
+    config = GenerateConfig(
+        models=args.models, views=args.views, size=args.size, seed=args.seed, world=args.world
+    )
     times, density, returns = [], [], []
     for m in range(config.models):
         model = build_model(config, m)
@@ -217,6 +222,21 @@ def parser() -> argparse.ArgumentParser:
         "--mesh-scale", type=float, default=1.0, help="metres per mesh unit (no manifest)"
     )
     g.add_argument("--mesh-split", default="real", help="split name of the folder's meshes")
+    g.add_argument(
+        "--world",
+        default="paper",
+        choices=WORLDS,
+        help="how each frame's camera, sensor, LIDAR, range and sky are drawn: paper (Tables "
+        "1-2, 50-250 m, stars), any (every factor), mixed (a quarter paper, the rest any) or "
+        "one robustness condition (default paper)",
+    )
+    g.add_argument(
+        "--only-splits",
+        nargs="*",
+        default=[],
+        metavar="SPLIT",
+        help="render only the models of these splits, e.g. test real (default: all)",
+    )
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)
 
@@ -259,6 +279,7 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--views", type=int, default=4)
     b.add_argument("--size", type=int, default=1024)
     b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--world", default="paper", choices=WORLDS, help="as for generate")
     b.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="for the projection")
     b.set_defaults(func=cmd_bench)
     return p
