@@ -56,7 +56,9 @@ def frames(meshes: Path, views: int, model_path: Path):
         for v in range(views):
             sample = make_sample(config, spacecraft, m, v, "real")
             K = Intrinsics(**sample.meta["intrinsics"])
-            result = complete(onnx.run, sample.gray, sample.sparse, onnx.stride)
+            result = complete(
+                onnx.run, sample.gray, sample.sparse, K.fx, onnx.stride, onnx.info.work_pixels
+            )
             truth = Pose(
                 *spacecraft.file_frame_pose(
                     np.array(sample.meta["rotation"]), np.array(sample.meta["translation_m"])

@@ -65,7 +65,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     gray = cv2.imread(str(args.dir / "gray.png"), cv2.IMREAD_UNCHANGED)
     sparse = np.load(args.dir / "sparse.npy", allow_pickle=False)
     model = OnnxModel(args.model, provider="cpu", threads=args.threads)
-    ref = complete(model.run, gray, sparse, model.stride)
+    K = model.info.intrinsics.scaled(gray.shape[1], gray.shape[0])  # what the service defaults to
+    ref = complete(model.run, gray, sparse, K.fx, model.stride, model.info.work_pixels)
 
     depth = np.load(args.result / "depth.npy", allow_pickle=False)
     mask = cv2.imread(str(args.result / "mask.png"), cv2.IMREAD_UNCHANGED) > 0

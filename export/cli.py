@@ -19,6 +19,7 @@ from sdcnet.dataset_format import SampleStore
 from sdcnet.export.onnx_export import (
     MAX_DEPTH_ERROR_M,
     MIN_MASK_AGREEMENT,
+    Frame,
     export_checked,
     model_metadata,
 )
@@ -27,13 +28,13 @@ from sdcnet.training.checkpoint import load_checkpoint
 from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
 
 
-def parity_frames(seed: int, count: int = 2) -> list:
-    """``count`` 1024 x 1024 frames of procedural spacecraft (gray, sparse), rendered now."""
+def parity_frames(seed: int, count: int = 2) -> list[Frame]:
+    """``count`` 1024 x 1024 frames of procedural spacecraft (gray, sparse, fx), rendered now."""
     config = GenerateConfig(models=count, views=1, seed=seed, split=(count, 0, 0))
     frames = []
     for m in range(count):
         sample = make_sample(config, build_model(config, m), m, 0, "parity")
-        frames.append((sample.gray, sample.sparse))
+        frames.append((sample.gray, sample.sparse, sample.meta["intrinsics"]["fx"]))
     return frames
 
 
@@ -129,7 +130,8 @@ def calibration_frames(data: Path | None, count: int = 32) -> list:
     if data is None:
         return parity_frames(seed=4096, count=count)
     store = SampleStore(data)
-    return [(s.gray, s.sparse) for s in map(store.load, store.split("train", count))]
+    samples = map(store.load, store.split("train", count))
+    return [(s.gray, s.sparse, s.meta["intrinsics"]["fx"]) for s in samples]
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ import onnx
 import torch
 
 from sdcnet import __version__, runtime
+from sdcnet.pipeline import WORK_PIXELS
 from sdcnet.runtime import INPUTS, OUTPUTS, OnnxModel
 from sdcnet.training.model.sdcnet import SDCNet
 
@@ -35,6 +36,7 @@ def model_metadata(
         version,
         model.config.stride,
         model.config.factor,
+        WORK_PIXELS,
         metrics,
         {"model_config": json.dumps(model.config.to_dict()), **(extra or {})},
     )
@@ -45,8 +47,9 @@ def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Pa
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     model = model.eval().cpu()
-    example = (torch.rand(1, 1, 256, 256), torch.zeros(1, 1, 256, 256))
+    example = (torch.rand(1, 1, 256, 256), torch.zeros(1, 1, 256, 256), torch.ones(1, 1, 1, 1))
     dynamic = {name: {0: "batch", 2: "height", 3: "width"} for name in (*INPUTS, *OUTPUTS)}
+    dynamic["focal_px"] = {0: "batch"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notices
         torch.onnx.export(
@@ -90,32 +93,32 @@ class ParityCase:
         )
 
 
+#: One parity or calibration frame: gray uint8 (H, W), sparse float32 (H, W) metres, fx pixels.
+Frame = tuple[np.ndarray, np.ndarray, float]
+
+
 def parity_check(
     model: SDCNet,
     onnx_path: str | Path,
-    frames: list[tuple[np.ndarray, np.ndarray]],
+    frames: list[Frame],
     sizes: tuple[int, ...] = (512, 1024),
     batches: tuple[int, ...] = (1, 2),
 ) -> list[ParityCase]:
-    """Compare onnxruntime (CPU) with PyTorch on (gray uint8, sparse) frames, centre-cropped to
-    each size. Needs at least max(batches) frames."""
+    """Compare onnxruntime (CPU) with PyTorch on frames centre-cropped to each size. Needs at
+    least max(batches) frames."""
     session = OnnxModel(onnx_path, provider="CPUExecutionProvider")
     model = model.eval().cpu()
     cases = []
     for size in sizes:
         for batch in batches:
-            gray = (
-                np.stack([_centre(g, size) for g, _ in frames[:batch]])[:, None].astype(np.float32)
-                / 255
-            )
-            sparse = np.stack([_centre(s, size) for _, s in frames[:batch]])[:, None].astype(
-                np.float32
-            )
+            chosen = frames[:batch]
+            gray = np.stack([_centre(g, size) for g, _, _ in chosen])[:, None] / np.float32(255)
+            sparse = np.stack([_centre(s, size) for _, s, _ in chosen])[:, None]
+            focal = np.array([f for _, _, f in chosen], np.float32).reshape(-1, 1, 1, 1)
+            inputs = (gray.astype(np.float32), sparse.astype(np.float32), focal)
             with torch.no_grad():
-                ref_depth, ref_prob = (
-                    t.numpy() for t in model(torch.from_numpy(gray), torch.from_numpy(sparse))
-                )
-            depth, prob = session.run(gray, sparse)
+                ref_depth, ref_prob = (t.numpy() for t in model(*map(torch.from_numpy, inputs)))
+            depth, prob = session.run(*inputs)
             foreground = ref_prob > 0.5
             error = np.abs(depth - ref_depth)[foreground | (prob > 0.5)]
             cases.append(
@@ -134,7 +137,7 @@ def export_checked(
     model: SDCNet,
     out: Path,
     metadata: dict[str, str],
-    frames: list[tuple[np.ndarray, np.ndarray]],
+    frames: list[Frame],
 ) -> list[ParityCase]:
     """Export ``model`` to a temporary file beside ``out``, check its parity on ``frames``, and
     only when every case passes move it to ``out`` (one rename): ``out`` never holds a graph

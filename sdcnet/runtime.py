@@ -15,13 +15,15 @@ import onnxruntime as ort
 
 from sdcnet import __version__
 from sdcnet.camera import PAPER_CAMERA, Intrinsics
+from sdcnet.pipeline import WORK_PIXELS
 
-INPUTS = ("gray", "sparse")
+INPUTS = ("gray", "sparse", "focal_px")
 OUTPUTS = ("depth", "foreground")
 #: What each tensor holds, in the file's metadata (``/model`` shows it).
 TENSORS = {
     "gray": "float32 (B, 1, H, W) in [0, 1]: 8-bit / 255 or 16-bit / 65535",
     "sparse": "float32 (B, 1, H, W) LIDAR camera-frame Z in metres, 0 = no return",
+    "focal_px": "float32 (B, 1, 1, 1) focal length in pixels of the grid gray and sparse are on",
     "depth": "float32 (B, 1, H, W) camera-frame Z, metres (valid on the foreground)",
     "foreground": "float32 (B, 1, H, W) probability that a pixel is spacecraft",
 }
@@ -38,19 +40,21 @@ def model_metadata(
     version: str,
     stride: int,
     factor: int = 1,
+    work_pixels: int = WORK_PIXELS,
     metrics: dict | None = None,
     extra: dict[str, str] | None = None,
 ) -> dict[str, str]:
     """The metadata_props an sdcnet ONNX file carries: what ``OnnxModel`` reads (version, the
-    paper camera's intrinsics at its training size, the crop ``stride`` in pixels, the
-    ``factor`` of its internal resolution) and what ``/model`` shows (metrics, tensors)."""
+    default camera's intrinsics (the paper's), the input ``stride`` in pixels, the ``factor``
+    of its internal resolution, the ``work_pixels`` per frame it was trained and timed for)
+    and what ``/model`` shows (metrics, tensors)."""
     meta = {
         "sdcnet_version": __version__,
         "model_version": version,
         "intrinsics": json.dumps(PAPER_CAMERA.intrinsics().as_dict()),
-        "training_size": str(PAPER_CAMERA.width),
         "stride": str(stride),
         "factor": str(factor),
+        "work_pixels": str(work_pixels),
         "metrics": json.dumps(metrics or {}),
         "inputs": json.dumps({name: TENSORS[name] for name in INPUTS}),
         "outputs": json.dumps({name: TENSORS[name] for name in OUTPUTS}),
@@ -88,7 +92,7 @@ class ModelInfo:
     intrinsics: Intrinsics
     stride: int
     factor: int
-    training_size: int
+    work_pixels: int
     metrics: dict
     raw: dict[str, str]
 
@@ -109,7 +113,7 @@ def _info(session: ort.InferenceSession, path: Path) -> ModelInfo:
         intrinsics=Intrinsics(**json.loads(meta["intrinsics"])),
         stride=int(meta["stride"]),
         factor=int(meta.get("factor", 1)),
-        training_size=int(meta.get("training_size", 1024)),
+        work_pixels=int(meta.get("work_pixels", WORK_PIXELS)),
         metrics=json.loads(meta.get("metrics", "{}")),
         raw=dict(meta),
     )
@@ -152,7 +156,11 @@ class OnnxModel:
     def stride(self) -> int:
         return self.info.stride
 
-    def run(self, gray: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(B, 1, h, w) float32 gray in [0, 1] and sparse metres -> depth (m), probability."""
-        depth, prob = self.session.run(list(OUTPUTS), {"gray": gray, "sparse": sparse})
+    def run(
+        self, gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(B, 1, h, w) float32 gray in [0, 1] and sparse metres, (B, 1, 1, 1) focal length in
+        pixels -> depth (m), probability: the pipeline's model callable."""
+        feeds = {"gray": gray, "sparse": sparse, "focal_px": focal_px}
+        depth, prob = self.session.run(list(OUTPUTS), feeds)
         return depth, prob

@@ -60,7 +60,7 @@ def test_every_variant_exports_with_parity_at_two_sizes_and_batches(variant, fra
     cases = parity_check(model, path, frames, sizes=sizes, batches=(1, 2))
     assert [(c.size, c.batch) for c in cases] == [(s, b) for s in sizes for b in (1, 2)]
     assert all(c.passed for c in cases), cases
-    assert all(c.max_depth_error_m < 5e-4 for c in cases)  # metres; the export's bar is 1 mm
+    assert all(c.max_depth_error_m < onnx_export.MAX_DEPTH_ERROR_M for c in cases)
     assert all(c.mask_agreement == 1.0 for c in cases)
     assert [c.compared_px for c in cases] == [c.batch * c.size**2 for c in cases]
 
@@ -78,7 +78,10 @@ def test_parity_rejects_a_model_whose_depth_differs(exported, frames):
     model, path = exported
     (case,) = parity_check(perturbed(model, depth_bias=0.1), path, frames, (256,), (1,))
     assert not case.passed and case.mask_agreement == 1.0 and case.compared_px == 256**2
-    assert case.max_depth_error_m == pytest.approx(0.1, rel=1e-3)  # the bias x 1 m (residual)
+    _, sparse, fx = frames[0]
+    crop = torch.from_numpy(onnx_export._centre(sparse, 256).copy())[None, None]
+    unit = model.residual_unit(crop, torch.full((1, 1, 1, 1), fx)).item()  # metres
+    assert case.max_depth_error_m == pytest.approx(0.1 * unit, rel=1e-3)  # the bias x the unit
 
 
 def test_parity_rejects_a_model_whose_mask_differs(exported, frames):

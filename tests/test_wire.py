@@ -55,12 +55,12 @@ def url(model_path, tmp_path_factory):
 @pytest.fixture(scope="module")
 def expected(model_path) -> dict[str, np.ndarray]:
     """The 256 x 256 test frame completed in process, as the service must answer it: the
-    pipeline on onnxruntime (same model, same single thread), the paper's camera scaled (a
-    256 px frame is run at 4x, the model's pixel scale)."""
+    pipeline on onnxruntime (same model, same single thread), the paper's camera scaled."""
     s = generated(256)
     model = OnnxModel(model_path, provider="cpu", threads=1)
-    result = complete(model.run, s.gray, s.sparse, model.stride, zoom=4.0)
     K = model.info.intrinsics.scaled(256, 256)
+    info = model.info
+    result = complete(model.run, s.gray, s.sparse, K.fx, info.stride, info.work_pixels)
     points = back_project(result.depth, result.mask, K)
     assert result.mask.any()
     return {"depth": result.depth, "mask": result.mask.astype(np.uint8), "points": points}

@@ -17,11 +17,14 @@ from sdcnet.meshes import read_mesh_folder
 from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
+from sdcnet.training.data.conditions import ROBUSTNESS
 from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
 from sdcnet.training.evaluate import (
-    ClassicalFill,
+    Method,
+    classical,
     evaluate_records,
     mask_metrics_only,
+    network,
     torch_model_fn,
     torch_segmentation_fn,
 )
@@ -43,8 +46,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _methods(args: argparse.Namespace) -> dict[str, tuple]:
-    """Name -> (model callable, stride) for --checkpoint, --onnx and --floor."""
+def _methods(args: argparse.Namespace) -> dict[str, Method]:
+    """Name -> method for --checkpoint, --onnx and --floor."""
     names = getattr(args, "names", None) or []
     if names and len(names) != len(args.checkpoint):
         raise ValueError(f"--names gives {len(names)} names for {len(args.checkpoint)} checkpoints")
@@ -56,18 +59,38 @@ def _methods(args: argparse.Namespace) -> dict[str, tuple]:
         if name in methods:
             raise ValueError(f"two checkpoints are both called {name!r}: give --names")
         fn = torch_segmentation_fn(model) if segmentation_only else torch_model_fn(model)
-        methods[name] = (fn, model.config.stride)
+        methods[name] = network(fn, model.config.stride)
     if args.onnx:
         from sdcnet.runtime import OnnxModel
 
         onnx_model = OnnxModel(args.onnx)
-        methods[f"onnx:{Path(args.onnx).name}"] = (onnx_model.run, onnx_model.stride)
+        methods[f"onnx:{Path(args.onnx).name}"] = network(
+            onnx_model.run, onnx_model.stride, onnx_model.info.work_pixels
+        )
     if args.floor:
-        fill = ClassicalFill()
-        methods["classical fill"] = (torch_model_fn(fill), fill.stride)
+        methods["classical fill"] = classical
     if not methods:
         raise ValueError("nothing to evaluate: give --checkpoint, --onnx or --floor")
     return methods
+
+
+def cmd_robustness(args: argparse.Namespace) -> int:
+    """Every condition of the robustness suite: the methods against the classical fill."""
+    from sdcnet.training.robustness import run_suite
+
+    table = run_suite(
+        _methods(args),
+        args.conditions,
+        Path(args.data),
+        read_mesh_folder(args.meshes) if args.meshes else (),
+        Path(args.out),
+        args.views,
+        args.seed,
+        args.workers,
+        args.gallery,
+    )
+    print(table)
+    return 0
 
 
 def cmd_real(args: argparse.Namespace) -> int:
@@ -88,8 +111,7 @@ def cmd_real(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     per_method = {
-        name: evaluate_per_model(fn, store, records, stride)
-        for name, (fn, stride) in methods.items()
+        name: evaluate_per_model(method, store, records) for name, method in methods.items()
     }
     overall = {name: tables["all"].mean() for name, tables in per_method.items()}
     lines = [
@@ -121,13 +143,12 @@ def cmd_real(args: argparse.Namespace) -> int:
             indent=1,
         )
     )
-    fn, stride = methods[first]
     others = {
         name: method
         for name, method in methods.items()
         if name != first and not name.startswith("onnx:")  # the same model as the first
     }
-    print(gallery(fn, store, records, stride, out / "gallery.png", others))
+    print(gallery(methods[first], store, records, out / "gallery.png", others))
     print("\n".join(lines))
     return 0
 
@@ -139,8 +160,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise ValueError(f"split {args.split!r} is empty in {args.data}")
     methods = _methods(args)
     results, counts, undefined = {}, {}, {}
-    for name, (fn, stride) in methods.items():
-        table = evaluate_records(fn, store, records, stride=stride, desc=name)
+    for name, method in methods.items():
+        table = evaluate_records(method, store, records, desc=name)
         results[name], counts[name], undefined[name] = table.mean(), len(table), table.undefined()
         if args.segmentation_only:
             results[name] = mask_metrics_only(results[name])
@@ -228,6 +249,12 @@ def parser() -> argparse.ArgumentParser:
         help="fine-tune: start from this checkpoint's weights (same variant), e.g. the shipped "
         "model on your own spacecraft; --epochs 0 trains the segmentation alone",
     )
+    f.add_argument(
+        "--warm-start",
+        dest="warm_start",
+        help="start from a checkpoint of an earlier design: every weight whose name and shape "
+        "fit, and the shared input channels of layers that gained some",
+    )
     f.add_argument("--restart", action="store_true", help="ignore OUT/last.pt")
     f.set_defaults(func=cmd_fit)
 
@@ -267,6 +294,26 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", type=int, default=2)
     r.add_argument("--out", default="docs/real", help="markdown table, JSON and gallery.png")
     r.set_defaults(func=cmd_real)
+
+    o = sub.add_parser(
+        "robustness",
+        help="model vs classical fill per condition (cameras, LIDARs, ranges, skies) on "
+        "spacecraft never trained on: table, latency and galleries",
+    )
+    o.add_argument("--checkpoint", nargs="*", default=[], help="first one draws the galleries")
+    o.add_argument("--names", nargs="*", help="table labels of the checkpoints, in order")
+    o.add_argument("--onnx", help="also the exported ONNX model (onnxruntime, as served)")
+    o.add_argument("--conditions", nargs="*", default=list(ROBUSTNESS), choices=list(ROBUSTNESS))
+    o.add_argument(
+        "--meshes", default="../shared/real-meshes", help="real meshes (manifest.json); '' none"
+    )
+    o.add_argument("--data", default="data/robustness", help="where the frames go (made once)")
+    o.add_argument("--views", type=int, default=3, help="frames per spacecraft and condition")
+    o.add_argument("--seed", type=int, default=0, help="the reference dataset's (its test split)")
+    o.add_argument("--workers", type=int, default=2)
+    o.add_argument("--gallery", type=int, default=4, help="frames per condition's picture")
+    o.add_argument("--out", default="docs/robustness", help="robustness.md, .json, galleries")
+    o.set_defaults(func=cmd_robustness, floor=False)
 
     q = sub.add_parser(
         "pose",
@@ -324,11 +371,8 @@ def cmd_pose(args: argparse.Namespace) -> int:
     from sdcnet.training import pose_eval
 
     onnx = OnnxModel(args.onnx, threads=args.threads)
-    fill = ClassicalFill()
-    methods = {
-        "completed": (onnx.run, onnx.stride),
-        "classical fill": (torch_model_fn(fill), fill.stride),
-    }
+    completed = network(onnx.run, onnx.stride, onnx.info.work_pixels)
+    methods = {"completed": completed, "classical fill": classical}
     entries = read_mesh_folder(args.meshes)
     real_config = GenerateConfig(models=0, views=args.views, seed=args.seed, meshes=entries)
     real = {k: (build_model(real_config, k), load_target(entry)) for k, entry in enumerate(entries)}
@@ -366,7 +410,7 @@ def cmd_pose(args: argparse.Namespace) -> int:
 
     for cloud, name in (("completed", "failures.png"), (pose_eval.RAW, "failures_raw.png")):
         picks = [(r, *load(r)) for r in pose_eval.pick_failures(scratch, cloud, args.gallery)]
-        rows = pose_eval.gallery_rows(picks, onnx.run, onnx.stride, cloud)
+        rows = pose_eval.gallery_rows(picks, completed, cloud)
         cv2.imwrite(str(out / name), montage(rows, tile=256))
         print(out / name)
     return 0

@@ -5,7 +5,7 @@ The clouds of a frame (camera frame, metres), each registered by ``sdcnet.regist
 with the frame's LIDAR returns as the final refinement (the service's own path):
 
 - ``completed``: the model's completed depth (ONNX, ``sdcnet.pipeline.complete``);
-- ``classical fill``: the morphological fill's (``ClassicalFill``) depth;
+- ``classical fill``: the morphological fill's depth (``sdcnet.training.classical_fill``);
 - ``raw returns``: the LIDAR returns alone.
 
 Tracking: the first frame of a sequence from scratch, every next one from the constant-velocity
@@ -28,13 +28,13 @@ from tqdm import tqdm
 
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
-from sdcnet.pipeline import ModelFn, complete
 from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, extrapolate, pose_errors
 from sdcnet.targets import Target, prepare_target
 from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
 from sdcnet.training.data.spacecraft import SpacecraftModel
+from sdcnet.training.evaluate import Method
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,
@@ -73,15 +73,13 @@ def truth_of(sample: Sample) -> Pose:
     return Pose(np.array(sample.meta["pose"]["R"]), np.array(sample.meta["pose"]["t"]))
 
 
-def clouds(
-    sample: Sample, methods: dict[str, tuple[ModelFn, int]]
-) -> Iterator[tuple[str, np.ndarray, float]]:
+def clouds(sample: Sample, methods: dict[str, Method]) -> Iterator[tuple[str, np.ndarray, float]]:
     """(name, cloud, milliseconds to make it) per method, then the raw returns."""
     K = Intrinsics(**sample.meta["intrinsics"])
-    for name, (fn, stride) in methods.items():
+    for name, method in methods.items():
         start = time.perf_counter()
-        result = complete(fn, sample.gray, sample.sparse, stride=stride)
-        cloud = back_project(result.depth, result.mask, K)
+        depth, mask = method(sample)
+        cloud = back_project(depth, mask, K)
         yield name, cloud, (time.perf_counter() - start) * 1e3
     yield RAW, back_project(sample.sparse, sample.sparse > 0, K), 0.0
 
@@ -133,7 +131,7 @@ def _register(
 
 
 def evaluate_frames(
-    frames: Iterable[tuple[Target, Sample]], methods: dict[str, tuple[ModelFn, int]]
+    frames: Iterable[tuple[Target, Sample]], methods: dict[str, Method]
 ) -> list[FrameResult]:
     """Every frame from scratch, from every cloud."""
     results = []
@@ -149,7 +147,7 @@ def evaluate_frames(
 def evaluate_sequences(
     store: SampleStore,
     targets: dict[str, Target],
-    methods: dict[str, tuple[ModelFn, int]],
+    methods: dict[str, Method],
     progress: bool = True,
 ) -> list[FrameResult]:
     """Every sequence of ``store`` tracked, from every cloud (see the module docstring)."""
@@ -316,19 +314,19 @@ def split_ids(dataset: Path, split: str, limit: int) -> list[int]:
 
 
 def gallery_rows(
-    picks: list[tuple[FrameResult, Target, Sample]], fn: ModelFn, stride: int, cloud: str
+    picks: list[tuple[FrameResult, Target, Sample]], method: Method, cloud: str
 ) -> list[list[np.ndarray]]:
     """One row per pick: gray | LIDAR returns | completed depth | the target drawn at the
-    pose estimated from ``cloud`` ("completed" by ``fn``, or the raw returns) | ... at the
+    pose estimated from ``cloud`` ("completed" by ``method``, or the raw returns) | ... at the
     true pose; zoomed on the spacecraft."""
     rows = []
     for result, target, sample in picks:
         K = Intrinsics(**sample.meta["intrinsics"])
-        completion = complete(fn, sample.gray, sample.sparse, stride=stride)
+        depth, mask = method(sample)
         returns = back_project(sample.sparse, sample.sparse > 0, K)
-        points = back_project(completion.depth, completion.mask, K) if cloud != RAW else returns
+        points = back_project(depth, mask, K) if cloud != RAW else returns
         estimate = estimate_pose(target.model, points, returns)
-        window = object_crop(sample.mask | completion.mask)
+        window = object_crop(sample.mask | mask)
         scale = max(1, round((window[0].stop - window[0].start) / 256 / 2))
         base = gray_bgr(sample.gray)
         drawn = target.model.render_points
@@ -340,7 +338,7 @@ def gallery_rows(
                 labelled(
                     dilated_returns(sample.sparse, 4)[window], f"{sample.meta['returns']} returns"
                 ),
-                labelled(colorize_depth(completion.depth)[window], "completed depth"),
+                labelled(colorize_depth(depth)[window], "completed depth"),
                 labelled(
                     draw_points(base, estimate.pose.apply(drawn), K, radius=scale)[window],
                     f"{cloud}: {rotation_deg:.1f} deg, {translation_m:.2f} m{flag}",

@@ -28,11 +28,17 @@ from tqdm import tqdm
 
 from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.metrics import NAMES
-from sdcnet.training.checkpoint import load_weights, read_checkpoint, save_checkpoint
+from sdcnet.training.checkpoint import (
+    load_weights,
+    read_checkpoint,
+    save_checkpoint,
+    transplant_weights,
+)
 from sdcnet.training.dataset import TileDataset
 from sdcnet.training.evaluate import (
     evaluate_records,
     mask_metrics_only,
+    network,
     torch_model_fn,
     torch_segmentation_fn,
 )
@@ -54,8 +60,10 @@ class Segmenter(torch.nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
-        return self.model.segment(gray, sparse)
+    def forward(
+        self, gray: torch.Tensor, sparse: torch.Tensor, focal_px: torch.Tensor
+    ) -> torch.Tensor:
+        return self.model.segment(gray, sparse, focal_px)
 
 
 @dataclass
@@ -81,6 +89,7 @@ class TrainConfig:
     seed: int = 0
     init_segmentation: str | None = None  # reuse stage 1 of another run (its checkpoint)
     init_weights: str | None = None  # fine-tune: start both stages from this checkpoint's weights
+    warm_start: str | None = None  # another design's checkpoint: every weight that fits
     command: str = field(default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]))
 
 
@@ -202,6 +211,9 @@ class Trainer:
         if self.config.init_segmentation and self.model.fsnet is not None:
             state = self._segmentation_checkpoint
             provenance["segmentation_parent"] = {k: state[k] for k in PROVENANCE if k in state}
+        if self.config.warm_start:
+            state = self._warm_checkpoint
+            provenance["warm_start_parent"] = {k: state[k] for k in PROVENANCE if k in state}
         return provenance
 
     def _save(self, name: str, optimizer, scheduler) -> None:
@@ -272,19 +284,21 @@ class Trainer:
         )
 
     def _loss(self, stage: int, batch: dict[str, torch.Tensor], net) -> torch.Tensor:
+        inputs = (batch["gray"], batch["sparse"], batch["focal_px"])
         if stage == 1:  # net is a Segmenter
-            prob = net(batch["gray"], batch["sparse"])
+            prob = net(*inputs)
             loss = segmentation_loss(prob, batch["depth"])
             if self.config.iou_loss:
                 loss = loss + self.config.iou_loss * soft_iou_loss(prob, batch["depth"])
             return loss
-        depth, prob = net(batch["gray"], batch["sparse"])
+        depth, prob = net(*inputs)
         if self.model.fsnet is None:
             return dense_depth_loss(depth, batch["depth"])
-        loss = foreground_depth_loss(depth, prob, batch["depth"])
+        unit = self.model.residual_unit(batch["sparse"], batch["focal_px"])
+        loss = foreground_depth_loss(depth, prob, batch["depth"], unit)
         if self.config.gradient_loss:
             loss = loss + self.config.gradient_loss * depth_gradient_loss(
-                depth, prob, batch["depth"]
+                depth, prob, batch["depth"], unit
             )
         return loss
 
@@ -313,13 +327,12 @@ class Trainer:
     def validate(self, stage: int) -> dict[str, float]:
         """The six metrics on the val records. In stage 1 of a fresh run the depth networks are
         untrained, so only the mask is validated (IOU, IOI; the rest NaN), at FSNet's cost."""
-        mask_only = stage == 1 and not self.config.init_weights
+        mask_only = stage == 1 and not (self.config.init_weights or self.config.warm_start)
         fn = torch_segmentation_fn if mask_only else torch_model_fn
         table = evaluate_records(
-            fn(self.model, self.device),
+            network(fn(self.model, self.device), self.model.config.stride),
             self.store,
             self.val_records,
-            stride=self.model.config.stride,
             progress=self.is_main,
             desc="validate",
         )
@@ -365,6 +378,23 @@ class Trainer:
             )
         return state
 
+    @cached_property
+    def _warm_checkpoint(self) -> dict:
+        """The checkpoint of another design the run starts from (``--warm-start``)."""
+        return read_checkpoint(self.config.warm_start, self.device, check_config=False)
+
+    def _warm_start(self) -> None:
+        """Start from every weight of another design that fits (``transplant_weights``)."""
+        report = transplant_weights(self.model, self._warm_checkpoint["model"])
+        if not report["copied"]:
+            raise ValueError(f"{self.config.warm_start}: no weight fits this architecture")
+        if self.is_main:
+            print(
+                f"warm start from {self.config.warm_start}: {len(report['copied'])} tensors "
+                f"copied, {len(report['partial'])} in part ({', '.join(report['partial'])}), "
+                f"{len(report['left'])} left as initialised"
+            )
+
     def _init_weights(self) -> None:
         """Start from a whole trained model of the same variant (fine-tuning)."""
         load_weights(self.model, self._init_checkpoint["model"], self.config.init_weights)
@@ -382,6 +412,8 @@ class Trainer:
         """Run (or resume) both stages; the best checkpoint: best.pt, or best_stage1.pt when
         stage 2 has no epochs (segmentation-only runs)."""
         optimizer_state, scheduler_state = self._resume() if resume else (None, None)
+        if optimizer_state is None and self.config.warm_start:
+            self._warm_start()
         if optimizer_state is None and self.config.init_weights:
             self._init_weights()
         if (

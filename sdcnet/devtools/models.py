@@ -22,15 +22,18 @@ def graph_model(
     initializers: tuple = (),
 ):
     """An ONNX model (opset 17) of ``nodes`` on float tensors (B, 1, H, W) named ``inputs``
-    and ``outputs``, carrying ``metadata``. Needs the ``onnx`` package."""
+    and ``outputs`` (``focal_px``: (B, 1, 1, 1)), carrying ``metadata``. Needs the ``onnx``
+    package."""
     from onnx import TensorProto, helper
 
-    shape = ["batch", 1, "height", "width"]
+    def shape(name: str) -> list:
+        return ["batch", 1, 1, 1] if name == "focal_px" else ["batch", 1, "height", "width"]
+
     graph = helper.make_graph(
         nodes,
         "sdcnet-test",
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in inputs],
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in outputs],
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape(n)) for n in inputs],
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape(n)) for n in outputs],
         initializer=list(initializers),
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])

@@ -220,9 +220,12 @@ def sample_sun_near_view(
     frame widened by the margin (converted to pixels at the focal length)."""
     pad_u = K.fx * math.tan(math.radians(margin_deg))
     pad_v = K.fy * math.tan(math.radians(margin_deg))
-    u = rng.uniform(-0.5 - pad_u, K.width - 0.5 + pad_u)
-    v = rng.uniform(-0.5 - pad_v, K.height - 0.5 + pad_v)
-    return _unit(K.pixel_rays(u, v))
+    while True:  # the widened rectangle's corners lie farther than the margin: drawn again
+        u = rng.uniform(-0.5 - pad_u, K.width - 0.5 + pad_u)
+        v = rng.uniform(-0.5 - pad_v, K.height - 0.5 + pad_v)
+        sun = _unit(K.pixel_rays(u, v))
+        if sun_in_view(K, sun, margin_deg):
+            return sun
 
 
 def _cone_box(

@@ -121,7 +121,17 @@ class PlaneFitPrefill(nn.Module):
         self, sparse: torch.Tensor, d_ref: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``d_ref`` (B, 1, 1, 1) metres: subtracted before the fit for float32 precision."""
-        cells = self.cell_channels(sparse, d_ref)
+        plane, weight, _ = self.fit(self.cell_channels(sparse, d_ref), d_ref)
+        return plane, weight
+
+    def fit(
+        self, cells: torch.Tensor, d_ref: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The plane, its window weight and the spread of the returns behind it from
+        ``cell_channels``' output (computed once when several windows fit the same returns).
+        The spread is the smaller eigenvalue of the weighted covariance of the returns'
+        positions (px^2): near 0 when they lie on one line, whose slope across it the fit
+        cannot know."""
         py, px = self.padding
         moments = F.conv2d(
             F.conv2d(cells, self.horizontal, padding=(0, px)), self.vertical, padding=(py, 0)
@@ -140,4 +150,61 @@ class PlaneFitPrefill(nn.Module):
         slope_y = (cxx * czy - cxy * czx) / det
         plane = d_ref + mz - slope_x * mx - slope_y * my  # the plane at the cell's centre
         weight = torch.where(supported, S0, torch.zeros_like(S0))
-        return torch.where(supported, plane, torch.zeros_like(plane)), weight
+        half_trace = (cxx + cyy) / 2 - self.ridge_px2
+        spread = half_trace - torch.sqrt(((cxx - cyy) / 2) ** 2 + cxy * cxy)
+        return torch.where(supported, plane, torch.zeros_like(plane)), weight, spread
+
+
+class AdaptivePlaneFit(nn.Module):
+    """The plane fit with a window that follows the returns' spacing, pixel by pixel.
+
+    One window cannot serve every LIDAR: half the paper's beam spacing (9 x 6 px) finds no
+    return between the rows of a 16-beam sensor 100 px apart and averages across depth edges
+    where a flash array puts a return on every other pixel. Here the fit runs with isotropic
+    windows ``sigmas_px`` (full-resolution pixels, finest first) and each cell takes the finest
+    whose window weight reaches ``min_support`` (about one return at the window's centre, or
+    several around it) and whose returns spread across the window in every direction (the
+    smaller eigenvalue of their positions' covariance at least (``min_spread`` sigma)^2: a
+    window that sees one scan line cannot tell the slope across it), else the coarsest with
+    any support. Sparse (B, 1, H, W) metres ->
+    plane (B, 1, H/f, W/f) metres (0 = none), weight (B, 1, H/f, W/f) (0 = none) and level
+    (B, 1, H/f, W/f): the chosen window's index over the count of windows (1 = none), which
+    tells the network how far apart the returns are around each cell.
+    """
+
+    def __init__(
+        self,
+        *,
+        factor: int = 4,
+        sigmas_px: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0),
+        min_support: float = 1.0,
+        min_spread: float = 0.25,
+        ridge_px2: float = 0.5,
+    ):
+        super().__init__()
+        # The coarsest window is the fallback where no finer one sees returns spread around
+        # it: a few far returns, often on one line, whose slopes would swing the plane by
+        # their float32 rounding. Its ridge grows with its area; the others are well posed.
+        ridges = [ridge_px2] * (len(sigmas_px) - 1)
+        ridges.append(ridge_px2 * (sigmas_px[-1] / sigmas_px[0]) ** 2)
+        self.fits = nn.ModuleList(
+            PlaneFitPrefill(factor=factor, sigma_px=(s, s), ridge_px2=r)
+            for s, r in zip(sigmas_px, ridges, strict=True)
+        )
+        self.min_support = min_support
+        self.min_spread_px2 = [(min_spread * s) ** 2 for s in sigmas_px]
+
+    def forward(
+        self, sparse: torch.Tensor, d_ref: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        cells = self.fits[0].cell_channels(sparse, d_ref)
+        count = len(self.fits)
+        plane, weight, _ = self.fits[-1].fit(cells, d_ref)
+        level = torch.where(weight > 0, torch.full_like(weight, (count - 1) / count), 1.0)
+        for k in range(count - 2, -1, -1):  # finer windows overwrite where they are supported
+            fine, fine_weight, spread = self.fits[k].fit(cells, d_ref)
+            chosen = (fine_weight >= self.min_support) & (spread >= self.min_spread_px2[k])
+            plane = torch.where(chosen, fine, plane)
+            weight = torch.where(chosen, fine_weight, weight)
+            level = torch.where(chosen, torch.full_like(level, k / count), level)
+        return plane, weight, level
