@@ -27,6 +27,7 @@ NEEDS_TRAINING = {
     "test_sequence.py",  # sdc-data sequence
     "test_training.py",
     "test_worlds.py",  # the generator's worlds
+    "test_evaluation.py",  # the classical fill, stored answers, the robustness suite
     "test_lidar.py",
     "test_backgrounds.py",
 }

@@ -26,26 +26,30 @@ CLOSE = (20 / 18, 20 / 12.5)
 HOLES = (36 / 18, 36 / 12.5)
 #: Working resolution: the factor that puts the smaller spacing about this many pixels apart.
 SPACING_AT_WORK_PX = 3.1
-#: Anisotropy of the metric that finds a return's neighbour along a row (or a column).
-AXIS_WEIGHT = 8.0
+#: Neighbours searched for the nearest along and across the rows: enough for rows 30 times
+#: farther apart than the returns along them.
+NEIGHBOURS = 64
 
 
 def return_spacing(rows: np.ndarray, cols: np.ndarray) -> tuple[float, float]:
     """Typical distance (pixels) between neighbouring returns along the columns and along the
-    rows: (vertical, horizontal). Each return's nearest neighbour is found in a metric that
-    stretches the other axis ``AXIS_WEIGHT`` times, so a row's neighbour wins along rows and
-    the next row's along columns, whether rows are straight (a scanner, a flash array) or
-    curved (a rotating multi-beam sensor); the median over returns. NaN for fewer than 2."""
+    rows: (vertical, horizontal). Among each return's ``NEIGHBOURS`` nearest, the nearest
+    that lies more across than along a row is its vertical neighbour, the nearest more along
+    its horizontal one, whether rows are straight (a scanner, a flash array) or curved (a
+    rotating multi-beam sensor) and however much denser along the rows; the median over the
+    returns that have one. NaN for fewer than 2 returns."""
     if len(rows) < 2:
         return float("nan"), float("nan")
     points = np.stack([rows, cols], 1).astype(np.float64)
+    k = min(NEIGHBOURS, len(points) - 1) + 1
+    distance, index = cKDTree(points).query(points, k=k)
+    step = points[index[:, 1:]] - points[:, None, :]  # (N, k - 1, 2): dy, dx
+    vertical = np.abs(step[..., 0]) > np.abs(step[..., 1])
     spacing = []
-    for axis in (0, 1):
-        weights = np.full(2, AXIS_WEIGHT)
-        weights[axis] = 1.0
-        _, index = cKDTree(points * weights).query(points * weights, k=2)
-        step = np.abs(points[index[:, 1], axis] - points[:, axis])
-        spacing.append(float(np.median(step[step > 0])) if (step > 0).any() else 1.0)
+    for along in (vertical, ~vertical):
+        d = np.where(along, distance[:, 1:], np.inf).min(axis=1)
+        d = d[np.isfinite(d)]
+        spacing.append(float(np.median(d)) if d.size else float("nan"))
     return spacing[0], spacing[1]
 
 
@@ -78,8 +82,9 @@ def classical_fill(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if len(rows) == 0:
         return np.zeros(sparse.shape, np.float32), np.zeros(sparse.shape, bool)
     spacings = return_spacing(rows, cols)
-    if not all(math.isfinite(s) for s in spacings):
-        spacings = (1.0, 1.0)
+    if not all(math.isfinite(s) for s in spacings):  # a lone return, or returns on one line
+        known = [s for s in spacings if math.isfinite(s)]
+        spacings = (known[0], known[0]) if known else (1.0, 1.0)
     factor = max(1, round(min(spacings) / SPACING_AT_WORK_PX))
     x = _near_wins_downsample(sparse, factor)
     x = cv2.dilate(x, _kernel(spacings, DILATE, factor))

@@ -21,6 +21,7 @@ from sdcnet.training.data.conditions import ROBUSTNESS
 from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
 from sdcnet.training.evaluate import (
     Method,
+    StoredAnswers,
     classical,
     evaluate_records,
     mask_metrics_only,
@@ -67,6 +68,11 @@ def _methods(args: argparse.Namespace) -> dict[str, Method]:
         methods[f"onnx:{Path(args.onnx).name}"] = network(
             onnx_model.run, onnx_model.stride, onnx_model.info.work_pixels
         )
+    for entry in getattr(args, "answers", None) or []:
+        name, sep, folder = entry.partition("=")
+        if not sep or not name or not folder:
+            raise ValueError(f"--answers takes NAME=FOLDER, got {entry!r}")
+        methods[name] = StoredAnswers(folder)
     if args.floor:
         methods["classical fill"] = classical
     if not methods:
@@ -88,6 +94,7 @@ def cmd_robustness(args: argparse.Namespace) -> int:
         args.seed,
         args.workers,
         args.gallery,
+        args.models,
     )
     print(table)
     return 0
@@ -267,6 +274,13 @@ def parser() -> argparse.ArgumentParser:
         help="run only the foreground path of the checkpoints: IOU and IOI (stage-1-only runs)",
     )
     e.add_argument("--onnx", help="also evaluate an exported ONNX model (onnxruntime)")
+    e.add_argument(
+        "--answers",
+        nargs="*",
+        default=[],
+        metavar="NAME=FOLDER",
+        help="answers made elsewhere, e.g. the previous model (benchmarks/previous_model.py)",
+    )
     e.add_argument("--data", required=True)
     e.add_argument("--split", default="test")
     e.add_argument("--floor", action="store_true", help="also the classical morphological fill")
@@ -284,6 +298,13 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--checkpoint", nargs="*", default=[], help="first one draws the gallery")
     r.add_argument("--names", nargs="*", help="table labels of the checkpoints, in order")
     r.add_argument("--onnx", help="also the exported ONNX model")
+    r.add_argument(
+        "--answers",
+        nargs="*",
+        default=[],
+        metavar="NAME=FOLDER",
+        help="answers made elsewhere, e.g. the previous model (benchmarks/previous_model.py)",
+    )
     r.add_argument("--floor", action="store_true", help="also the classical morphological fill")
     r.add_argument(
         "--meshes", default="../shared/real-meshes", help="mesh folder with manifest.json"
@@ -303,6 +324,13 @@ def parser() -> argparse.ArgumentParser:
     o.add_argument("--checkpoint", nargs="*", default=[], help="first one draws the galleries")
     o.add_argument("--names", nargs="*", help="table labels of the checkpoints, in order")
     o.add_argument("--onnx", help="also the exported ONNX model (onnxruntime, as served)")
+    o.add_argument(
+        "--answers",
+        nargs="*",
+        default=[],
+        metavar="NAME=FOLDER",
+        help="answers made elsewhere, e.g. the previous model (benchmarks/previous_model.py)",
+    )
     o.add_argument("--conditions", nargs="*", default=list(ROBUSTNESS), choices=list(ROBUSTNESS))
     o.add_argument(
         "--meshes", default="../shared/real-meshes", help="real meshes (manifest.json); '' none"
@@ -310,6 +338,7 @@ def parser() -> argparse.ArgumentParser:
     o.add_argument("--data", default="data/robustness", help="where the frames go (made once)")
     o.add_argument("--views", type=int, default=3, help="frames per spacecraft and condition")
     o.add_argument("--seed", type=int, default=0, help="the reference dataset's (its test split)")
+    o.add_argument("--models", type=int, default=126, help="the reference dataset's model count")
     o.add_argument("--workers", type=int, default=2)
     o.add_argument("--gallery", type=int, default=4, help="frames per condition's picture")
     o.add_argument("--out", default="docs/robustness", help="robustness.md, .json, galleries")

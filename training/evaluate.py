@@ -8,6 +8,7 @@ classical fill (``classical_fill``) of each frame is the reference of the depth 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -72,6 +73,33 @@ def network(model_fn: ModelFn, stride: int, work_pixels: int = WORK_PIXELS) -> M
 def classical(sample: Sample) -> tuple[np.ndarray, np.ndarray]:
     """The classical morphological fill of the frame's returns (``classical_fill``)."""
     return classical_fill(sample.sparse)
+
+
+class StoredAnswers:
+    """Answers made elsewhere (another version of sdcnet, another system): one
+    ``<frame id>.npz`` per frame in ``folder`` with ``depth`` (metres), ``mask`` and the
+    ``milliseconds`` it took (``benchmarks/previous_model.py`` writes them); scored like any
+    method."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise FileNotFoundError(f"no answers folder {self.folder}")
+
+    def _load(self, sample: Sample) -> dict[str, np.ndarray]:
+        path = self.folder / f"{sample.meta['id']}.npz"
+        if not path.is_file():
+            raise FileNotFoundError(f"{self.folder} holds no answer for frame {sample.meta['id']}")
+        with np.load(path, allow_pickle=False) as answer:
+            return {k: answer[k] for k in answer.files}
+
+    def __call__(self, sample: Sample) -> tuple[np.ndarray, np.ndarray]:
+        answer = self._load(sample)
+        return answer["depth"].astype(np.float32), answer["mask"].astype(bool)
+
+    def milliseconds(self, sample: Sample) -> float:
+        """What the frame took where it was answered."""
+        return float(self._load(sample)["milliseconds"])
 
 
 def score_frame(method: Method, sample: Sample) -> dict[str, float]:

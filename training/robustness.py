@@ -26,7 +26,7 @@ from sdcnet.meshes import MeshEntry
 from sdcnet.metrics import BAND_NAMES, MetricTable
 from sdcnet.training.data.conditions import ROBUSTNESS
 from sdcnet.training.data.generate import GenerateConfig, generate
-from sdcnet.training.evaluate import Method, classical, score_frame
+from sdcnet.training.evaluate import Method, StoredAnswers, classical, score_frame
 from sdcnet.training.real import gallery_row
 from sdcnet.visualize import montage
 
@@ -36,11 +36,20 @@ UNSEEN = ("test", "real")
 
 
 def render_condition(
-    name: str, root: Path, meshes: tuple[MeshEntry, ...], views: int, seed: int, workers: int
+    name: str,
+    root: Path,
+    meshes: tuple[MeshEntry, ...],
+    views: int,
+    seed: int,
+    workers: int,
+    models: int = 126,
 ) -> SampleStore:
     """The frames of one condition (rendered once into ``root/name``): ``views`` of every
-    test-split model of the reference dataset (126 models, ``seed``) and of every mesh."""
-    config = GenerateConfig(views=views, seed=seed, world=name, meshes=meshes, only_splits=UNSEEN)
+    test-split model of the reference dataset (``models`` models, ``seed``: the training
+    data's test split) and of every mesh."""
+    config = GenerateConfig(
+        models=models, views=views, seed=seed, world=name, meshes=meshes, only_splits=UNSEEN
+    )
     store = generate(config, root / name, workers=workers, progress=True)
     if store is None:
         raise RuntimeError(f"{root / name}: generation did not finish")
@@ -86,10 +95,13 @@ def evaluate_condition(
     results = {}
     for name, method in {**methods, FILL: classical}.items():
         clock: list[float] = []
-        run = method if name == FILL else timed(method, clock)
+        run = method if name == FILL or isinstance(method, StoredAnswers) else timed(method, clock)
         table = MetricTable()
         for record in tqdm(store.records, desc=f"{desc}: {name}", unit="img", leave=False):
-            table.add(score_frame(run, store.load(record)))
+            sample = store.load(record)
+            table.add(score_frame(run, sample))
+            if isinstance(method, StoredAnswers):
+                clock.append(method.milliseconds(sample))
         results[name] = ConditionResult(table.mean(), table.undefined(), clock)
     return results
 
@@ -100,6 +112,15 @@ def _pair(own: float, fill: float) -> str:
 
 def _num(value: float, fmt: str) -> str:
     return "n/a" if np.isnan(value) else format(value, fmt)
+
+
+def for_condition(methods: dict[str, Method], condition: str) -> dict[str, Method]:
+    """``methods`` for one condition: stored answers are kept per condition, in a folder of
+    the condition's name (``benchmarks/previous_model.py`` on the suite's data)."""
+    return {
+        name: StoredAnswers(m.folder / condition) if isinstance(m, StoredAnswers) else m
+        for name, m in methods.items()
+    }
 
 
 def condition_table(results: dict[str, dict[str, ConditionResult]], frames: dict[str, int]) -> str:
@@ -158,6 +179,7 @@ def run_suite(
     seed: int,
     workers: int,
     gallery: int,
+    models: int = 126,
 ) -> str:
     """Render (once), evaluate and draw every condition; writes ``out/robustness.md``,
     ``robustness.json`` and ``gallery_<condition>.png``; returns the table."""
@@ -168,8 +190,8 @@ def run_suite(
     results, frames = {}, {}
     first = next(iter(methods))
     for condition in conditions:
-        store = render_condition(condition, data, meshes, views, seed, workers)
-        results[condition] = evaluate_condition(methods, store, condition)
+        store = render_condition(condition, data, meshes, views, seed, workers, models)
+        results[condition] = evaluate_condition(for_condition(methods, condition), store, condition)
         frames[condition] = len(store)
         if gallery:
             condition_gallery(
