@@ -97,6 +97,7 @@ def export(args: argparse.Namespace) -> int:
         print(
             f"  {c.size:4d} px, batch {c.batch}: max |depth diff| "
             f"{c.max_depth_error_m * 1000:.4f} mm over {c.compared_px} foreground px, "
+            f"sigma {100 * c.max_sigma_error:.4f} %, "
             f"mask agreement {100 * c.mask_agreement:.4f} %  "
             f"{'ok' if c.passed else 'FAILED'}"
         )

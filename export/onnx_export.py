@@ -2,7 +2,8 @@
 
 The parity check runs onnxruntime (CPU) against PyTorch on real generated frames at two sizes
 and batch 1 and 2, and fails the export when depth differs by more than 1 mm anywhere on the
-foreground or the foreground decisions agree on fewer than 99.99 % of pixels.
+foreground, sigma by more than 0.1 %, or the foreground decisions agree on fewer than 99.99 %
+of pixels.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from sdcnet.training.model.sdcnet import SDCNet
 OPSET = 17
 MAX_DEPTH_ERROR_M = 1e-3
 MIN_MASK_AGREEMENT = 0.9999
+MAX_SIGMA_ERROR = 1e-3  # relative
 
 
 def model_metadata(
@@ -76,20 +78,22 @@ def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Pa
 
 @dataclass
 class ParityCase:
-    """One comparison: ``size`` x ``size`` crops, ``batch`` of them; depth compared on the
-    ``compared_px`` pixels that either runtime calls foreground."""
+    """One comparison: ``size`` x ``size`` crops, ``batch`` of them; depth (metres) and sigma
+    (relative) compared on the ``compared_px`` pixels that either runtime calls foreground."""
 
     size: int
     batch: int
     max_depth_error_m: float
     mask_agreement: float
     compared_px: int
+    max_sigma_error: float = 0.0  # relative
 
     @property
     def passed(self) -> bool:
         return (
             self.max_depth_error_m <= MAX_DEPTH_ERROR_M
             and self.mask_agreement >= MIN_MASK_AGREEMENT
+            and self.max_sigma_error <= MAX_SIGMA_ERROR
         )
 
 
@@ -117,10 +121,15 @@ def parity_check(
             focal = np.array([f for _, _, f in chosen], np.float32).reshape(-1, 1, 1, 1)
             inputs = (gray.astype(np.float32), sparse.astype(np.float32), focal)
             with torch.no_grad():
-                ref_depth, ref_prob = (t.numpy() for t in model(*map(torch.from_numpy, inputs)))
-            depth, prob = session.run(*inputs)
+                reference = [t.numpy() for t in model(*map(torch.from_numpy, inputs))]
+            ref_depth, ref_prob, ref_sigma = reference
+            depth, prob, sigma = session.run(*inputs)
             foreground = ref_prob > 0.5
-            error = np.abs(depth - ref_depth)[foreground | (prob > 0.5)]
+            compared = foreground | (prob > 0.5)
+            error = np.abs(depth - ref_depth)[compared]
+            sigma_error = np.abs(sigma - ref_sigma)[compared] / np.maximum(
+                ref_sigma[compared], 1e-6
+            )
             cases.append(
                 ParityCase(
                     size,
@@ -128,6 +137,7 @@ def parity_check(
                     float(error.max()) if error.size else 0.0,
                     float(np.mean((prob > 0.5) == foreground)),
                     int(error.size),
+                    float(sigma_error.max()) if sigma_error.size else 0.0,
                 )
             )
     return cases

@@ -15,9 +15,9 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    the probability resampled and thresholded, the depth resampled without blending across
    depth edges (``resample_depth``). Outside the crop the answer is background.
 
-The model is any callable ``(gray, sparse, focal_px) -> (depth, probability)`` on (B, 1, h, w)
-float32 arrays and a (B, 1, 1, 1) focal length: onnxruntime in the service, PyTorch in
-evaluation.
+The model is any callable ``(gray, sparse, focal_px) -> (depth, probability[, sigma])`` on
+(B, 1, h, w) float32 arrays and a (B, 1, 1, 1) focal length: onnxruntime in the service,
+PyTorch in evaluation; sigma, the depth's uncertainty in metres, where the model has it.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import numpy as np
 
 from sdcnet.returns import scatter_nearest
 
-ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
 
 #: Pixels the network sees per frame, padding included: set by the 100 ms budget of one frame
 #: on two cores (docs/benchmarks.md), and carried by each model file (``work_pixels``).
@@ -260,6 +260,7 @@ class Completion:
     probability_crop: np.ndarray  # (h, w) float32
     grid: WorkingGrid
     frame_shape: tuple[int, int]
+    sigma_crop: np.ndarray | None = None  # (h, w) float32 metres, 0 off the mask
 
     @property
     def region(self) -> Region:
@@ -284,6 +285,11 @@ class Completion:
     def probability(self) -> np.ndarray:
         """(H, W) float32."""
         return self._full(self.probability_crop)
+
+    @functools.cached_property
+    def sigma(self) -> np.ndarray | None:
+        """(H, W) float32 metres, 0 off the mask; None when the model has no uncertainty."""
+        return None if self.sigma_crop is None else self._full(self.sigma_crop)
 
 
 #: Foreground components without a LIDAR return are kept only this close (working pixels) to
@@ -370,14 +376,16 @@ def working_inputs(
     )
 
 
-def run_model(model: ModelFn, inputs: WorkingInputs) -> tuple[np.ndarray, np.ndarray]:
-    """The model's depth (metres) and probability on one frame's working grid (h, w)."""
-    depth, prob = model(
+def run_model(model: ModelFn, inputs: WorkingInputs) -> tuple[np.ndarray, ...]:
+    """The model's depth (metres), probability and sigma (metres; None when the model has
+    none) on one frame's working grid (h, w)."""
+    outputs = model(
         inputs.gray[None, None],
         inputs.sparse[None, None],
         np.full((1, 1, 1, 1), inputs.focal_px, np.float32),
     )
-    return depth[0, 0], prob[0, 0]
+    depth, prob, *sigma = (o[0, 0] for o in outputs)
+    return depth, prob, (sigma[0] if sigma else None)
 
 
 def complete(
@@ -393,7 +401,7 @@ def complete(
     (``working_inputs``), and paste the answer back at the frame's resolution."""
     inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels)
     grid = inputs.grid
-    depth_w, prob_w = run_model(model, inputs)
+    depth_w, prob_w, sigma_w = run_model(model, inputs)
     kept = drop_specks(prob_w > threshold, inputs.sparse, KEEP_DISTANCE_PX, MIN_PART_PX)
     prob_w = np.where(kept | (prob_w <= threshold), prob_w, 0.0).astype(np.float32)
     returns = inputs.sparse[inputs.sparse > 0]
@@ -401,4 +409,7 @@ def complete(
     prob_crop = resample_image(prob_w, grid.region.shape)
     depth_crop = resample_depth(depth_w, grid.region.shape, footprint)
     mask_crop = kept if grid.identity else prob_crop > threshold
-    return Completion(depth_crop * mask_crop, mask_crop, prob_crop, grid, gray.shape)
+    sigma_crop = None
+    if sigma_w is not None:
+        sigma_crop = resample_depth(sigma_w, grid.region.shape, math.inf) * mask_crop
+    return Completion(depth_crop * mask_crop, mask_crop, prob_crop, grid, gray.shape, sigma_crop)

@@ -18,7 +18,7 @@ from sdcnet.camera import PAPER_CAMERA, Intrinsics
 from sdcnet.pipeline import WORK_PIXELS
 
 INPUTS = ("gray", "sparse", "focal_px")
-OUTPUTS = ("depth", "foreground")
+OUTPUTS = ("depth", "foreground", "sigma")
 #: What each tensor holds, in the file's metadata (``/model`` shows it).
 TENSORS = {
     "gray": "float32 (B, 1, H, W) in [0, 1]: 8-bit / 255 or 16-bit / 65535",
@@ -26,6 +26,7 @@ TENSORS = {
     "focal_px": "float32 (B, 1, 1, 1) focal length in pixels of the grid gray and sparse are on",
     "depth": "float32 (B, 1, H, W) camera-frame Z, metres (valid on the foreground)",
     "foreground": "float32 (B, 1, H, W) probability that a pixel is spacecraft",
+    "sigma": "float32 (B, 1, H, W) the depth's uncertainty, metres: |error| <= sigma for 68 %",
 }
 PREFERRED_PROVIDERS = ("CUDAExecutionProvider", "CPUExecutionProvider")
 #: Session option: whether idle intra-op threads spin-wait for work ("1") or sleep ("0").
@@ -158,9 +159,9 @@ class OnnxModel:
 
     def run(
         self, gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(B, 1, h, w) float32 gray in [0, 1] and sparse metres, (B, 1, 1, 1) focal length in
-        pixels -> depth (m), probability: the pipeline's model callable."""
+        pixels -> depth (m), probability, sigma (m): the pipeline's model callable."""
         feeds = {"gray": gray, "sparse": sparse, "focal_px": focal_px}
-        depth, prob = self.session.run(list(OUTPUTS), feeds)
-        return depth, prob
+        depth, prob, sigma = self.session.run(list(OUTPUTS), feeds)
+        return depth, prob, sigma

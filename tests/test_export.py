@@ -81,7 +81,7 @@ def test_parity_rejects_a_model_whose_depth_differs(exported, frames):
     _, sparse, fx = frames[0]
     crop = torch.from_numpy(onnx_export._centre(sparse, 256).copy())[None, None]
     unit = model.residual_unit(crop, torch.full((1, 1, 1, 1), fx)).item()  # metres
-    assert case.max_depth_error_m == pytest.approx(0.1 * unit, rel=1e-3)  # the bias x the unit
+    assert case.max_depth_error_m == pytest.approx(0.1 * unit, rel=5e-3)  # the bias x the unit
 
 
 def test_parity_rejects_a_model_whose_mask_differs(exported, frames):

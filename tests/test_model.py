@@ -10,6 +10,7 @@ from sdcnet.training.dataset import TileDataset
 from sdcnet.training.losses import (
     depth_gradient_loss,
     foreground_depth_loss,
+    laplace_nll,
     segmentation_loss,
     soft_iou_loss,
 )
@@ -45,9 +46,10 @@ def test_every_variant_accepts_odd_sizes_and_batches(variant):
     model = SDCNet(VARIANTS[variant]).eval()
     gray, sparse = torch.rand(2, 1, 77, 131), lidar_like(2, 77, 131)
     with torch.no_grad():
-        depth, prob = model(gray, sparse, focal(2))
-    assert depth.shape == prob.shape == (2, 1, 77, 131)
+        depth, prob, sigma = model(gray, sparse, focal(2))
+    assert depth.shape == prob.shape == sigma.shape == (2, 1, 77, 131)
     assert torch.isfinite(depth).all() and ((prob >= 0) & (prob <= 1)).all()
+    assert torch.isfinite(sigma).all() and (sigma > 0).all()
     if model.fsnet is not None:  # stage 1 trains exactly the mask the full model outputs
         with torch.no_grad():
             torch.testing.assert_close(model.segment(gray, sparse, focal(2)), prob)
@@ -57,7 +59,7 @@ def test_every_variant_accepts_odd_sizes_and_batches(variant):
 def test_fsnet_input_choices_of_table_4(inputs):
     model = SDCNet(ModelConfig(fsnet_inputs=inputs)).eval()
     with torch.no_grad():
-        _, prob = model(torch.rand(1, 1, 64, 64), lidar_like(1, 64, 64), FOCAL)
+        _, prob, _ = model(torch.rand(1, 1, 64, 64), lidar_like(1, 64, 64), FOCAL)
     assert prob.shape == (1, 1, 64, 64)
 
 
@@ -152,7 +154,7 @@ def test_a_few_optimisation_steps_reduce_both_losses(tiny_dataset):
     depth_losses = []
     unit = model.residual_unit(batch["sparse"], batch["focal_px"])
     for _ in range(12):
-        depth, prob = model(*inputs)
+        depth, prob, _ = model(*inputs)
         loss = foreground_depth_loss(depth, prob.detach(), batch["depth"], unit)
         opt.zero_grad()
         loss.backward()
@@ -245,10 +247,11 @@ def test_a_scene_k_times_larger_and_farther_gives_k_times_the_depth_and_the_same
     sparse = lidar_like(1, 128, 160, depth=30.0)
     sparse[sparse > 0] += torch.rand(int((sparse > 0).sum())) * 2.0  # a relief of 2 m
     with torch.no_grad():
-        depth, prob = model(gray, sparse, FOCAL)
-        far_depth, far_prob = model(gray, 8.0 * sparse, FOCAL)
+        depth, prob, sigma = model(gray, sparse, FOCAL)
+        far_depth, far_prob, far_sigma = model(gray, 8.0 * sparse, FOCAL)
     torch.testing.assert_close(far_depth, 8.0 * depth, rtol=1e-4, atol=1e-3)
     torch.testing.assert_close(far_prob, prob, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(far_sigma, 8.0 * sigma, rtol=1e-4, atol=1e-5)
 
 
 def test_the_exposure_of_the_image_does_not_change_the_answer():
@@ -262,3 +265,20 @@ def test_the_exposure_of_the_image_does_not_change_the_answer():
         dark = model(gray / 4, sparse, FOCAL)
     for a, b in zip(bright, dark, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4)
+
+
+def test_the_laplace_nll_is_its_hand_computed_value_and_never_moves_the_depth():
+    gt = torch.tensor([[[[100.0, 100.0, 0.0]]]])
+    depth = torch.tensor([[[[100.3, 99.0, 50.0]]]], requires_grad=True)
+    scale = torch.tensor([[[[0.5, 2.0, 1.0]]]], requires_grad=True)
+    prob = torch.ones(1, 1, 1, 3)
+    unit = 0.25  # metres: log(b / unit)
+    loss = laplace_nll(depth.detach(), scale, prob, gt, unit)
+    expected = ((0.3 / 0.5 + np.log(0.5 / 0.25)) + (1.0 / 2.0 + np.log(2.0 / 0.25))) / 2
+    assert loss.item() == pytest.approx(expected, rel=1e-5)  # the sky pixel is left out
+    loss.backward()
+    assert depth.grad is None and scale.grad[0, 0, 0, 2] == 0
+    # its minimum over the scale is the absolute error: d/db (e / b + log b) = 0 at b = e
+    b = torch.tensor([[[[0.3, 1.0, 1.0]]]], requires_grad=True)
+    laplace_nll(depth.detach(), b, prob, gt).backward()
+    torch.testing.assert_close(b.grad[..., :2], torch.zeros(1, 1, 1, 2), atol=1e-4, rtol=0)

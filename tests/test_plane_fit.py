@@ -137,7 +137,7 @@ def test_a_fresh_model_answers_the_plane_fit_itself():
     rng = np.random.default_rng(2)
     sparse = beam_grid(128, 128, lambda r, c: 120.0 + 0.02 * c + 0.01 * r, rng)
     with torch.no_grad():
-        depth, _ = model(
+        depth, _, _ = model(
             torch.rand(1, 1, 128, 128),
             torch.from_numpy(sparse)[None, None],
             torch.full((1, 1, 1, 1), 7939.2),

@@ -238,6 +238,7 @@ def parser() -> argparse.ArgumentParser:
         ("weight_decay", float),
         ("gradient_loss", float),
         ("iou_loss", float),
+        ("sigma_loss", float),
         ("samples_per_epoch", int),
         ("train_samples", int),
         ("val_samples", int),

@@ -23,14 +23,14 @@ from sdcnet.training.model.sdcnet import SDCNet
 
 
 def torch_model_fn(model: torch.nn.Module, device: torch.device | str = "cpu") -> ModelFn:
-    """Wrap a (gray, sparse, focal_px) -> (depth, probability) module as a numpy callable."""
+    """Wrap a (gray, sparse, focal_px) -> (depth, probability, sigma) module as a numpy
+    callable."""
     model = model.eval().to(device)
 
     @torch.no_grad()
     def run(gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray):
         inputs = (torch.from_numpy(a).to(device) for a in (gray, sparse, focal_px))
-        depth, prob = model(*inputs)
-        return depth.cpu().numpy(), prob.cpu().numpy()
+        return tuple(t.cpu().numpy() for t in model(*inputs))
 
     return run
 

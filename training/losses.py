@@ -74,3 +74,22 @@ def depth_gradient_loss(
         errors = errors + ((pred_step - true_step).abs() / unit)[both].sum()
         count += int(both.sum())
     return errors / max(count, 1)
+
+
+def laplace_nll(
+    depth: torch.Tensor,
+    scale: torch.Tensor,
+    probability: torch.Tensor,
+    gt_depth: torch.Tensor,
+    unit: torch.Tensor | float = 1.0,
+) -> torch.Tensor:
+    """Negative log-likelihood of the true depth under a Laplace distribution centred on the
+    predicted depth with ``scale`` (metres), mean over predicted ∩ true foreground:
+    |d - d_true| / b + log(b / unit), constant log 2 left out. Its minimum over b is the mean
+    absolute error, so a scale trained with it says how wrong each pixel's depth is. Callers
+    pass ``depth`` detached: the uncertainty learns from the depth, never the other way."""
+    region = (probability > 0.5) & (gt_depth > 0)
+    if not torch.any(region):
+        return scale.sum() * 0.0
+    b = scale.clamp_min(1e-6)
+    return ((depth - gt_depth).abs() / b + torch.log(b / unit))[region].mean()

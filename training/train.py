@@ -46,10 +46,11 @@ from sdcnet.training.losses import (
     dense_depth_loss,
     depth_gradient_loss,
     foreground_depth_loss,
+    laplace_nll,
     segmentation_loss,
     soft_iou_loss,
 )
-from sdcnet.training.model.sdcnet import ModelConfig, SDCNet, build_model
+from sdcnet.training.model.sdcnet import SIGMA_PER_SCALE, ModelConfig, SDCNet, build_model
 
 
 class Segmenter(torch.nn.Module):
@@ -82,6 +83,7 @@ class TrainConfig:
     weight_decay: float = 1e-3
     gradient_loss: float = 1.0  # weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)
     iou_loss: float = 0.0  # weight of a soft-IOU term beside eq. 6's BCE (stage 1)
+    sigma_loss: float = 1.0  # weight of the uncertainty's Laplace NLL (stage 2; depth detached)
     samples_per_epoch: int | None = None  # None: the whole train split every epoch
     train_samples: int | None = None  # None: every train frame; else this many, evenly spread
     val_samples: int | None = None  # None: the whole val split
@@ -291,7 +293,7 @@ class Trainer:
             if self.config.iou_loss:
                 loss = loss + self.config.iou_loss * soft_iou_loss(prob, batch["depth"])
             return loss
-        depth, prob = net(*inputs)
+        depth, prob, sigma = net(*inputs)
         if self.model.fsnet is None:
             return dense_depth_loss(depth, batch["depth"])
         unit = self.model.residual_unit(batch["sparse"], batch["focal_px"])
@@ -300,6 +302,10 @@ class Trainer:
             loss = loss + self.config.gradient_loss * depth_gradient_loss(
                 depth, prob, batch["depth"], unit
             )
+        if self.config.sigma_loss:
+            scale = sigma / SIGMA_PER_SCALE
+            nll = laplace_nll(depth.detach(), scale, prob, batch["depth"], unit)
+            loss = loss + self.config.sigma_loss * nll
         return loss
 
     def _train_epoch(self, stage: int, epoch: int, optimizer, net) -> float:

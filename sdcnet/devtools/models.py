@@ -49,7 +49,8 @@ def tiny_model(base: Path, stride: int = 64) -> Path:
 
     - ``depth``: the sparse map under a ``TINY_FILL_PX`` x ``TINY_FILL_PX`` max filter (two
       1-D max pools): each pixel takes the farthest LIDAR return around it, 0 far from any;
-    - ``foreground``: the gray image itself (a pixel brighter than mid-gray is spacecraft).
+    - ``foreground``: the gray image itself (a pixel brighter than mid-gray is spacecraft);
+    - ``sigma``: a tenth of the gray image, metres.
 
     Written once; needs the ``onnx`` package."""
     import onnx
@@ -75,6 +76,8 @@ def tiny_model(base: Path, stride: int = 64) -> Path:
             pads=[0, half, 0, half],
         ),
         helper.make_node("Identity", ["gray"], ["foreground"]),
+        helper.make_node("Constant", [], ["tenth"], value_float=0.1),
+        helper.make_node("Mul", ["gray", "tenth"], ["sigma"]),
     ]
     model = graph_model(nodes, metadata=model_metadata(TINY_VERSION, stride))
     onnx.checker.check_model(model, full_check=True)

@@ -2,7 +2,9 @@
 
 Inputs: gray (B, 1, H, W) in [0, 1]; sparse LIDAR depth (B, 1, H, W) in metres (0 = none);
 focal_px (B, 1, 1, 1), the focal length in pixels of the grid the two maps are on. Any H x W.
-Outputs: dense depth (B, 1, H, W) in metres and foreground probability (B, 1, H, W).
+Outputs: dense depth (B, 1, H, W) in metres, foreground probability (B, 1, H, W) and the
+depth's uncertainty sigma (B, 1, H, W) in metres: the scale of a Laplace distribution of the
+error times ``SIGMA_PER_SCALE``, so that |error| <= sigma for 68 % of pixels if it holds.
 
 The pipeline (``sdcnet.pipeline``) resamples every frame's crop to about the same number of
 working pixels, so the network sees a spacecraft a few hundred pixels across whatever the
@@ -38,12 +40,15 @@ from sdcnet.training.model.plane_fit import AdaptivePlaneFit
 from sdcnet.training.model.prefill import NearestReturnFill, near_wins_downsample
 
 FSNET_INPUTS = ("both", "gray", "sparse")
+DEPTH_INPUTS = 6  # channels of the depth branch's input (``SDCNet._regress``)
 #: The spacecraft's mean gray level at its LIDAR returns after ``normalise_gray``.
 GRAY_TARGET = 0.3
 #: Bounds of the gain ``normalise_gray`` applies, and the ceiling of the scaled image (bright
 #: Earth or Sun beside a dark spacecraft stay bright, not unbounded).
 GRAY_GAIN = (0.5, 16.0)
 GRAY_CEILING = 2.0
+#: sigma = this x the Laplace scale b: P(|e| <= 1.14 b) = 1 - exp(-1.14) = 68 %.
+SIGMA_PER_SCALE = 1.14
 
 
 @dataclass(frozen=True)
@@ -145,7 +150,7 @@ class SDCNet(nn.Module):
         cells = config.factor**2  # sub-pixel outputs per working pixel
         self.fdcnet = FDCNet(
             gray_channels=cells,
-            depth_channels=6,
+            depth_channels=DEPTH_INPUTS,
             out_channels=cells,
             widths=config.widths,
             fusion=config.fusion,
@@ -207,10 +212,12 @@ class SDCNet(nn.Module):
             logit_blocks = self.refiner(blocks, logit_blocks)
         return torch.sigmoid(F.pixel_shuffle(logit_blocks, seg))
 
-    def _regress(self, x: dict[str, torch.Tensor], focal_px: torch.Tensor) -> torch.Tensor:
-        """Dense depth in metres at full (padded) resolution: the local plane fit (else the
-        nearest return, else the mean return) plus the residual FDCNet regresses from the
-        gray image and the pre-fills."""
+    def _regress(
+        self, x: dict[str, torch.Tensor], focal_px: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Dense depth and its sigma in metres at full (padded) resolution: the local plane
+        fit (else the nearest return, else the mean return) plus the residual FDCNet
+        regresses from the gray image and the pre-fills."""
         d_ref, unit = x["d_ref"], x["unit"]
         plane, weight, level = self.plane_fit(x["sparse"], d_ref)
         fitted = (weight > 0).to(plane.dtype)
@@ -226,10 +233,12 @@ class SDCNet(nn.Module):
         ]
         base_lr = torch.where(weight > 0, plane, torch.where(filled > 0, filled, d_ref))
         gray = space_to_depth(x["gray"], self.config.factor)
-        out = self.fdcnet(gray, torch.cat(depth_in, 1))
+        out, log_scale = self.fdcnet(gray, torch.cat(depth_in, 1))
         residual = F.pixel_shuffle(out, self.config.factor)
+        scale = torch.exp(F.pixel_shuffle(log_scale, self.config.factor).clamp(-12.0, 8.0))
         unit_out = self.config.residual_span_px * footprint_m(d_ref, focal_px)
-        return self._upsample(base_lr) + unit_out * residual
+        depth = self._upsample(base_lr) + unit_out * residual
+        return depth, SIGMA_PER_SCALE * unit_out * scale
 
     def _upsample(self, x: torch.Tensor) -> torch.Tensor:
         """Working resolution -> full resolution, bilinear between cell centres."""
@@ -247,12 +256,13 @@ class SDCNet(nn.Module):
 
     def forward(
         self, gray: torch.Tensor, sparse: torch.Tensor, focal_px: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Depth (metres), foreground probability, sigma (metres), each (B, 1, H, W)."""
         H, W = gray.shape[-2:]
         x = self._prepare(gray, sparse, focal_px)
-        depth = self._regress(x, focal_px)
+        depth, sigma = self._regress(x, focal_px)
         if self.fsnet is not None:
             prob = self._segment(x)
         else:  # no segmentation: foreground where the regressed depth is not background
             prob = (depth > 0.5 * x["d_ref"]).to(depth.dtype)
-        return depth[..., :H, :W], prob[..., :H, :W]
+        return depth[..., :H, :W], prob[..., :H, :W], sigma[..., :H, :W]
