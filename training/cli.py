@@ -388,6 +388,7 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("--report", nargs="*", default=[], help="JSON files of `evaluate --out`")
     c.add_argument("--onnx", help="the exported model the card describes (names its version)")
     c.add_argument("--notes", help="markdown appended as is (limitations, observations)")
+    c.add_argument("--robustness", help="robustness.json of `sdc-train robustness`")
     c.add_argument("--out", required=True)
     c.set_defaults(func=cmd_card)
     return p
@@ -505,7 +506,8 @@ def cmd_card(args: argparse.Namespace) -> int:
         meta = {p.key: p.value for p in onnx.load(args.onnx).metadata_props}
         version = meta.get("model_version", version)
     notes = Path(args.notes).read_text() if args.notes else ""
-    Path(args.out).write_text(model_card(state, model, reports, version, notes))
+    robustness = json.loads(Path(args.robustness).read_text()) if args.robustness else None
+    Path(args.out).write_text(model_card(state, model, reports, version, notes, robustness))
     print(f"wrote {args.out}")
     return 0
 

@@ -154,6 +154,18 @@ def condition_table(results: dict[str, dict[str, ConditionResult]], frames: dict
     return "\n".join(lines)
 
 
+def table_of(report: dict) -> str:
+    """``condition_table`` of a ``robustness.json`` report (``run_suite``)."""
+    results = {
+        condition: {
+            name: ConditionResult(r["metrics"], r["undefined"], r["milliseconds"])
+            for name, r in by_method.items()
+        }
+        for condition, by_method in report["results"].items()
+    }
+    return condition_table(results, report["frames"])
+
+
 def condition_gallery(
     method: Method, store: SampleStore, count: int, title: str, out: Path
 ) -> Path:

@@ -203,8 +203,8 @@ class Trainer:
             "hardware": hardware_description(self.device, self.world),
             "train_config": asdict(self.config),
             "dataset": {
-                k: self.store.info[k]
-                for k in ("command", "seed", "models", "views", "size", "split_models")
+                k: self.store.info.get(k, "paper" if k == "world" else None)
+                for k in ("command", "seed", "models", "views", "size", "split_models", "world")
             },
         }
         if self.config.init_weights:
