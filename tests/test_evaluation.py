@@ -8,6 +8,7 @@ import pytest
 
 from sdcnet.dataset_format import Sample
 from sdcnet.devtools.models import tiny_model
+from sdcnet.metrics import uncertainty_metrics
 from sdcnet.runtime import OnnxModel
 from sdcnet.training.classical_fill import classical_fill, return_spacing
 from sdcnet.training.evaluate import StoredAnswers, network, score_frame
@@ -70,8 +71,9 @@ def test_stored_answers_are_scored_like_any_method(tmp_path):
     mask = s.depth > 0
     np.savez(tmp_path / "f0.npz", depth=s.depth, mask=mask, milliseconds=42.0)
     stored = StoredAnswers(tmp_path)
-    depth, got = stored(s)
+    depth, got, sigma = stored(s)
     assert (depth == s.depth).all() and got.dtype == bool and (got == mask).all()
+    assert sigma is None, "answers made without an uncertainty have none"
     assert stored.milliseconds(s) == 42.0
     report = score_frame(stored, s)
     assert report["IOU"] == 1.0 and report["MAEI"] == 0.0 and report["specks"] == 0
@@ -106,3 +108,20 @@ def test_the_robustness_suite_reports_every_condition_with_its_cost(tmp_path):
     assert len(tiny["milliseconds"]) == 1 and tiny["latency_ms"]["max"] > 0
     assert 0 <= report["results"]["flash"]["classical fill"]["metrics"]["IOU"] <= 1
     assert (tmp_path / "out" / "gallery_paper.png").stat().st_size > 1000
+
+
+def test_uncertainty_metrics_measure_coverage_and_what_dropping_the_unsure_buys():
+    gt = np.full((10, 10), 100.0, np.float32)
+    errors = np.linspace(0.01, 1.0, 100).reshape(10, 10).astype(np.float32)
+    depth = gt + errors
+    mask = np.ones((10, 10), bool)
+    sigma = np.full((10, 10), 0.5, np.float32)
+    m = uncertainty_metrics(depth, mask, gt, sigma)
+    assert m["sigma_within_1"] == pytest.approx(0.50, abs=0.011)
+    assert m["sigma_within_2"] == 1.0
+    assert m["sigma_mae_cut_10"] == pytest.approx(0.0, abs=1e-6), "all alike: nothing to drop"
+    honest = errors.copy()  # sigma that ranks the errors: the worst 10 % go
+    cut = uncertainty_metrics(depth, mask, gt, honest)["sigma_mae_cut_10"]
+    kept = np.sort(errors.ravel())[:90]
+    assert cut == pytest.approx(1 - kept.mean() / errors.mean(), rel=1e-4)
+    assert np.isnan(uncertainty_metrics(depth, mask, gt, None)["sigma_within_1"])

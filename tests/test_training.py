@@ -314,3 +314,29 @@ def test_ship_zero_makes_an_ablation_copy(run, tmp_path, capsys):
     assert train_main(bad) == 2
     assert "no weights under that prefix" in capsys.readouterr().err
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_calibrate_scales_sigma_to_cover_68_percent_of_the_errors(
+    run, tiny_dataset, tmp_path, capsys
+):
+    out = tmp_path / "calibrated.pt"
+    args = ["calibrate", "--checkpoint", str(run / "best.pt"), "--data", str(tiny_dataset)]
+    assert train_main([*args, "--split", "train", "--limit", "4", "--out", str(out)]) == 0
+    assert "within 1 / 2 sigma" in capsys.readouterr().out
+    before, _ = load_checkpoint(run / "best.pt")
+    after, state = load_checkpoint(out)
+    report = state["sigma_calibration"]
+    assert report["within_1_after"] == pytest.approx(0.68, abs=0.01)
+    assert report["within_2_after"] >= report["within_1_after"]
+    factor = after.config.sigma_per_scale / before.config.sigma_per_scale
+    assert factor == pytest.approx(report["factor"])
+    gray, sparse = torch.rand(1, 1, 64, 64), torch.zeros(1, 1, 64, 64)
+    sparse[..., ::9, ::6] = 80.0
+    focal = torch.full((1, 1, 1, 1), 2000.0)
+    with torch.no_grad():
+        d0, p0, s0 = before(gray, sparse, focal)
+        d1, p1, s1 = after(gray, sparse, focal)
+    torch.testing.assert_close(d1, d0)  # only sigma changes, by the factor
+    torch.testing.assert_close(p1, p0)
+    torch.testing.assert_close(s1, factor * s0)
+    assert state["train_config"] == load_checkpoint(run / "best.pt")[1]["train_config"]

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import json
 
-from sdcnet.metrics import depth_table, markdown_table
+import numpy as np
+
+from sdcnet.metrics import depth_table, markdown_table, uncertainty_table
 from sdcnet.training.model.sdcnet import SDCNet
 from sdcnet.training.robustness import table_of
 
@@ -131,7 +133,18 @@ def model_card(
                 depth_table(report["results"]),
                 "",
             ]
-        undefined = {k: v for k, v in report.get("undefined", {}).items() if any(v.values())}
+        if any(not np.isnan(m.get("sigma_within_1", np.nan)) for m in report["results"].values()):
+            lines += [
+                "The depth's uncertainty on predicted ∩ true foreground (`sigma`):",
+                "",
+                uncertainty_table(report["results"]),
+                "",
+            ]
+        undefined = {
+            k: {name: n for name, n in v.items() if n and not name.startswith("sigma_")}
+            for k, v in report.get("undefined", {}).items()
+        }
+        undefined = {k: v for k, v in undefined.items() if v}
         if undefined:
             lines += [f"Images left out of a mean for an empty set: {json.dumps(undefined)}", ""]
     if robustness:

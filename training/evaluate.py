@@ -54,25 +54,26 @@ def mask_metrics_only(means: dict[str, float]) -> dict[str, float]:
     return {k: v if k in (*MASK_NAMES, "specks") else float("nan") for k, v in means.items()}
 
 
-#: One way to answer a frame: sample -> depth (H, W) float32 metres (0 off the mask) and mask
-#: (H, W) bool. A network through the pipeline (``network``) or the classical fill.
-Method = Callable[[Sample], tuple[np.ndarray, np.ndarray]]
+#: One way to answer a frame: sample -> depth (H, W) float32 metres (0 off the mask), mask
+#: (H, W) bool and the depth's uncertainty sigma (H, W) float32 metres, or None for a method
+#: without one. A network through the pipeline (``network``) or the classical fill.
+Method = Callable[[Sample], tuple[np.ndarray, np.ndarray, np.ndarray | None]]
 
 
 def network(model_fn: ModelFn, stride: int, work_pixels: int = WORK_PIXELS) -> Method:
     """A network as the service runs it: ``sdcnet.pipeline.complete`` on the whole frame."""
 
-    def answer(sample: Sample) -> tuple[np.ndarray, np.ndarray]:
+    def answer(sample: Sample) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         fx = float(sample.meta["intrinsics"]["fx"])
         result = complete(model_fn, sample.gray, sample.sparse, fx, stride, work_pixels)
-        return result.depth, result.mask
+        return result.depth, result.mask, result.sigma
 
     return answer
 
 
-def classical(sample: Sample) -> tuple[np.ndarray, np.ndarray]:
+def classical(sample: Sample) -> tuple[np.ndarray, np.ndarray, None]:
     """The classical morphological fill of the frame's returns (``classical_fill``)."""
-    return classical_fill(sample.sparse)
+    return (*classical_fill(sample.sparse), None)
 
 
 class StoredAnswers:
@@ -93,9 +94,10 @@ class StoredAnswers:
         with np.load(path, allow_pickle=False) as answer:
             return {k: answer[k] for k in answer.files}
 
-    def __call__(self, sample: Sample) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, sample: Sample) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         answer = self._load(sample)
-        return answer["depth"].astype(np.float32), answer["mask"].astype(bool)
+        sigma = answer["sigma"].astype(np.float32) if "sigma" in answer else None
+        return answer["depth"].astype(np.float32), answer["mask"].astype(bool), sigma
 
     def milliseconds(self, sample: Sample) -> float:
         """What the frame took where it was answered."""
@@ -105,10 +107,10 @@ class StoredAnswers:
 def score_frame(method: Method, sample: Sample) -> dict[str, float]:
     """Every metric of ``sdcnet.metrics.frame_report`` for one frame, the classical fill of
     the same frame as the reference."""
-    depth, mask = method(sample)
-    fill_depth, fill_mask = classical(sample)
+    depth, mask, sigma = method(sample)
+    fill_depth, fill_mask, _ = classical(sample)
     K = Intrinsics(**sample.meta["intrinsics"])
-    return frame_report(depth, mask, fill_depth, fill_mask, sample.depth, sample.sparse, K)
+    return frame_report(depth, mask, fill_depth, fill_mask, sample.depth, sample.sparse, K, sigma)
 
 
 def evaluate_records(

@@ -78,7 +78,7 @@ def clouds(sample: Sample, methods: dict[str, Method]) -> Iterator[tuple[str, np
     K = Intrinsics(**sample.meta["intrinsics"])
     for name, method in methods.items():
         start = time.perf_counter()
-        depth, mask = method(sample)
+        depth, mask, _ = method(sample)
         cloud = back_project(depth, mask, K)
         yield name, cloud, (time.perf_counter() - start) * 1e3
     yield RAW, back_project(sample.sparse, sample.sparse > 0, K), 0.0
@@ -322,7 +322,7 @@ def gallery_rows(
     rows = []
     for result, target, sample in picks:
         K = Intrinsics(**sample.meta["intrinsics"])
-        depth, mask = method(sample)
+        depth, mask, _ = method(sample)
         returns = back_project(sample.sparse, sample.sparse > 0, K)
         points = back_project(depth, mask, K) if cloud != RAW else returns
         estimate = estimate_pose(target.model, points, returns)

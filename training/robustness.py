@@ -123,6 +123,13 @@ def for_condition(methods: dict[str, Method], condition: str) -> dict[str, Metho
     }
 
 
+def _coverage(m: dict[str, float]) -> str:
+    within = m.get("sigma_within_1", float("nan"))
+    if np.isnan(within):
+        return "n/a"
+    return f"{100 * within:.0f} / {100 * m['sigma_within_2']:.0f}"
+
+
 def condition_table(results: dict[str, dict[str, ConditionResult]], frames: dict[str, int]) -> str:
     """Markdown: per condition and method, IOU (the fill's beside it), depth MAE on the pixels
     the method shares with the fill (the fill's own in brackets) overall and by distance band,
@@ -130,8 +137,8 @@ def condition_table(results: dict[str, dict[str, ConditionResult]], frames: dict
     bands = " | ".join(f"{b}" for b in BAND_NAMES)
     lines = [
         f"| condition | frames | method | IOU % (fill) | MAE m (fill) | {bands} "
-        "| normals ° (fill) | specks | ms p50 / p95 / max |",
-        "|---|---|---|---|---|" + "---|" * len(BAND_NAMES) + "---|---|---|",
+        "| normals ° (fill) | specks | within sigma / 2 sigma % | ms p50 / p95 / max |",
+        "|---|---|---|---|---|" + "---|" * len(BAND_NAMES) + "---|---|---|---|",
     ]
     for condition, by_method in results.items():
         fill = by_method[FILL].metrics
@@ -148,6 +155,7 @@ def condition_table(results: dict[str, dict[str, ConditionResult]], frames: dict
                 *(_pair(m[f"MAE_{b}"], m[f"fill_MAE_{b}"]) for b in BAND_NAMES),
                 f"{_num(m['normal_mean_deg'], '.1f')} ({_num(fill['normal_mean_deg'], '.1f')})",
                 _num(m["specks"], ".2f"),
+                _coverage(m),
                 f"{lat['p50']:.0f} / {lat['p95']:.0f} / {lat['max']:.0f}",
             ]
             lines.append("| " + " | ".join(cells) + " |")

@@ -50,7 +50,7 @@ from sdcnet.training.losses import (
     segmentation_loss,
     soft_iou_loss,
 )
-from sdcnet.training.model.sdcnet import SIGMA_PER_SCALE, ModelConfig, SDCNet, build_model
+from sdcnet.training.model.sdcnet import ModelConfig, SDCNet, build_model
 
 
 class Segmenter(torch.nn.Module):
@@ -303,7 +303,7 @@ class Trainer:
                 depth, prob, batch["depth"], unit
             )
         if self.config.sigma_loss:
-            scale = sigma / SIGMA_PER_SCALE
+            scale = sigma / self.model.config.sigma_per_scale
             nll = laplace_nll(depth.detach(), scale, prob, batch["depth"], unit)
             loss = loss + self.config.sigma_loss * nll
         return loss

@@ -4,7 +4,8 @@ Inputs: gray (B, 1, H, W) in [0, 1]; sparse LIDAR depth (B, 1, H, W) in metres (
 focal_px (B, 1, 1, 1), the focal length in pixels of the grid the two maps are on. Any H x W.
 Outputs: dense depth (B, 1, H, W) in metres, foreground probability (B, 1, H, W) and the
 depth's uncertainty sigma (B, 1, H, W) in metres: the scale of a Laplace distribution of the
-error times ``SIGMA_PER_SCALE``, so that |error| <= sigma for 68 % of pixels if it holds.
+error times ``sigma_per_scale`` (1.14 for a Laplace error: |error| <= sigma for 68 % of
+pixels; ``sdc-train calibrate`` measures it on frames not trained on).
 
 The pipeline (``sdcnet.pipeline``) resamples every frame's crop to about the same number of
 working pixels, so the network sees a spacecraft a few hundred pixels across whatever the
@@ -47,8 +48,6 @@ GRAY_TARGET = 0.3
 #: Earth or Sun beside a dark spacecraft stay bright, not unbounded).
 GRAY_GAIN = (0.5, 16.0)
 GRAY_CEILING = 2.0
-#: sigma = this x the Laplace scale b: P(|e| <= 1.14 b) = 1 - exp(-1.14) = 68 %.
-SIGMA_PER_SCALE = 1.14
 
 
 @dataclass(frozen=True)
@@ -66,6 +65,7 @@ class ModelConfig:
     input_span_px: float = 256.0  # depth inputs: units of the metres this many pixels span
     residual_span_px: float = 16.0  # the residual head's unit, likewise
     mask_refiner: bool = True  # full-resolution refinement of FSNet's logits on the gray image
+    sigma_per_scale: float = 1.14  # sigma / the Laplace scale: set by ``sdc-train calibrate``
 
     @property
     def stride(self) -> int:
@@ -238,7 +238,7 @@ class SDCNet(nn.Module):
         scale = torch.exp(F.pixel_shuffle(log_scale, self.config.factor).clamp(-12.0, 8.0))
         unit_out = self.config.residual_span_px * footprint_m(d_ref, focal_px)
         depth = self._upsample(base_lr) + unit_out * residual
-        return depth, SIGMA_PER_SCALE * unit_out * scale
+        return depth, self.config.sigma_per_scale * unit_out * scale
 
     def _upsample(self, x: torch.Tensor) -> torch.Tensor:
         """Working resolution -> full resolution, bilinear between cell centres."""
