@@ -168,7 +168,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     methods = _methods(args)
     results, counts, undefined = {}, {}, {}
     for name, method in methods.items():
-        table = evaluate_records(method, store, records, desc=name)
+        table = evaluate_records(
+            method, store, records, desc=name, mask_only=args.segmentation_only
+        )
         results[name], counts[name], undefined[name] = table.mean(), len(table), table.undefined()
         if args.segmentation_only:
             results[name] = mask_metrics_only(results[name])

@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
-from sdcnet.metrics import MASK_NAMES, MetricTable, frame_report
+from sdcnet.metrics import MASK_NAMES, MetricTable, false_specks, frame_metrics, frame_report
 from sdcnet.pipeline import WORK_PIXELS, ModelFn, complete
 from sdcnet.training.classical_fill import classical_fill
 from sdcnet.training.model.sdcnet import SDCNet
@@ -113,15 +113,27 @@ def score_frame(method: Method, sample: Sample) -> dict[str, float]:
     return frame_report(depth, mask, fill_depth, fill_mask, sample.depth, sample.sparse, K, sigma)
 
 
+def score_mask(method: Method, sample: Sample) -> dict[str, float]:
+    """The paper's six metrics and the false specks of one frame, without the reports that
+    need the classical fill, the normals or sigma: what a mask alone is judged by."""
+    depth, mask, _ = method(sample)
+    report = frame_metrics(depth, mask, sample.depth)
+    report["specks"] = float(false_specks(mask, sample.sparse, sample.depth))
+    return report
+
+
 def evaluate_records(
     method: Method,
     store: SampleStore,
     records: list[dict],
     progress: bool = True,
     desc: str = "evaluate",
+    mask_only: bool = False,
 ) -> MetricTable:
-    """Per-image metrics of ``method`` over ``records`` of ``store`` (``score_frame``)."""
+    """Per-image metrics of ``method`` over ``records`` of ``store`` (``score_frame``, or
+    ``score_mask`` when only the mask matters)."""
+    score = score_mask if mask_only else score_frame
     table = MetricTable()
     for record in tqdm(records, desc=desc, unit="img", disable=not progress, leave=False):
-        table.add(score_frame(method, store.load(record)))
+        table.add(score(method, store.load(record)))
     return table

@@ -331,9 +331,10 @@ class Trainer:
         return float(np.mean(losses)) if losses else float("nan")
 
     def validate(self, stage: int) -> dict[str, float]:
-        """The six metrics on the val records. In stage 1 of a fresh run the depth networks are
-        untrained, so only the mask is validated (IOU, IOI; the rest NaN), at FSNet's cost."""
-        mask_only = stage == 1 and not (self.config.init_weights or self.config.warm_start)
+        """The metrics on the val records. Stage 1 trains the mask alone and keeps its best
+        epoch by IOU, so it validates the mask alone (IOU, IOI, specks; the rest NaN), at
+        FSNet's cost and without the depth reports."""
+        mask_only = stage == 1
         fn = torch_segmentation_fn if mask_only else torch_model_fn
         table = evaluate_records(
             network(fn(self.model, self.device), self.model.config.stride),
@@ -341,6 +342,7 @@ class Trainer:
             self.val_records,
             progress=self.is_main,
             desc="validate",
+            mask_only=mask_only,
         )
         return mask_metrics_only(table.mean()) if mask_only else table.mean()
 
