@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sdcnet.camera import Intrinsics
+from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.compact import mask_window
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
@@ -27,6 +27,7 @@ from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, decode_form
 from sdcnet.service.encode import encode
+from sdcnet.service.errors import ApiError
 from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, FrameSummary, Timings
 
 PHASES = ("decode", "queue", "inference", "encode")
@@ -158,9 +159,10 @@ class Completed:
 def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Frame) -> Intrinsics:
     """The request's intrinsics; each value not given is the configured camera's
     (``frame.camera``, at the image's size), else the model's ``default`` scaled to the
-    image."""
+    image. 422 ``invalid_intrinsics`` for values that cannot describe the frame
+    (``sdcnet.camera.check_intrinsics``, the one check of every route)."""
     base = frame.camera or default.scaled(width, height)
-    return Intrinsics(
+    K = Intrinsics(
         base.fx if frame.fx is None else frame.fx,
         base.fy if frame.fy is None else frame.fy,
         base.cx if frame.cx is None else frame.cx,
@@ -168,6 +170,10 @@ def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Fram
         width,
         height,
     )
+    try:
+        return check_intrinsics(K)
+    except IntrinsicsError as exc:
+        raise ApiError(422, "invalid_intrinsics", str(exc)) from None
 
 
 def complete_frame(

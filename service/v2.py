@@ -33,6 +33,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX
 from sdcnet.compact import crop, fp16_residuals, pack_mask
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import Frame, frame_of
@@ -69,23 +70,31 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
 
 
-#: Bounds of the intrinsics (pixels) that keep every point finite in float32: JSON, which
-#: answers may be sent in, has no infinity.
-FOCAL_RANGE = (1e-3, 1e9)
-PRINCIPAL_POINT_LIMIT = 1e6
-FocalLength = Annotated[float, Field(ge=FOCAL_RANGE[0], le=FOCAL_RANGE[1], allow_inf_nan=False)]
-Pixels = Annotated[
-    float, Field(ge=-PRINCIPAL_POINT_LIMIT, le=PRINCIPAL_POINT_LIMIT, allow_inf_nan=False)
+#: Intrinsics (pixels) are checked once the image's size is known, alike on every route
+#: (``sdcnet.camera.check_intrinsics``: 422 invalid_intrinsics); the schema states the part of
+#: it that does not depend on the size.
+FocalLength = Annotated[
+    float, Field(json_schema_extra={"exclusiveMinimum": 0, "maximum": MAX_FOCAL_PX})
 ]
+Pixels = float
+_FOV = f"{MAX_FIELD_OF_VIEW_DEG:g}"
 
 
 class InferParameters(_Strict):
     """Request parameters."""
 
-    fx: FocalLength | None = Field(None, description="focal length along x, pixels")
-    fy: FocalLength | None = Field(None, description="focal length along y, pixels")
-    cx: Pixels | None = Field(None, description="principal point column, pixels")
-    cy: Pixels | None = Field(None, description="principal point row, pixels")
+    fx: FocalLength | None = Field(
+        None, description=f"focal length along x, pixels (field of view < {_FOV} degrees)"
+    )
+    fy: FocalLength | None = Field(
+        None, description=f"focal length along y, pixels (field of view < {_FOV} degrees)"
+    )
+    cx: Pixels | None = Field(
+        None, description="principal point column, pixels, within half an image of it"
+    )
+    cy: Pixels | None = Field(
+        None, description="principal point row, pixels, within half an image of it"
+    )
     outlier_removal: bool = Field(
         False, description="statistical outlier removal on the point cloud (paper Fig. 7)"
     )

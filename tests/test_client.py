@@ -160,8 +160,8 @@ def test_a_4xx_answer_exits_3_with_the_service_message(url, tmp_path, capsys):
     argv = ["infer", str(tmp_path / "gray.png"), str(tmp_path / "sparse.npy"), "--url", url]
     assert main([*argv, "--fx", "-5", "--out", str(tmp_path / "out")]) == 3
     err = capsys.readouterr().err
-    assert "400 invalid_request" in err
-    assert "parameters.fx: Input should be greater than or equal to 0.001" in err
+    assert "422 invalid_intrinsics" in err
+    assert "focal lengths must be positive pixels, got fx -5" in err
     assert not (tmp_path / "out").exists()
     with Client(url) as client, pytest.raises(ServiceError) as raised:
         client.complete(s.gray, np.zeros_like(s.sparse))

@@ -194,10 +194,16 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     assert "inference;dur=" in response.headers["server-timing"]
 
 
-def test_odd_focal_lengths_are_served_at_the_nearest_supported_scale(client):
-    for fx in ("1e-9", "1.0", "1e9"):
+def test_intrinsics_are_those_of_a_pinhole_of_the_frame_or_422(client):
+    """Focal lengths from a 150 degree field of view (34.3 px across 256) to 1e9 px are
+    served at the fixed cost of a frame; shorter ones, and a principal point far outside, get
+    422 on every route (the Open Inference Protocol's: tests/test_wire.py)."""
+    for fx in ("34.5", "1e9"):
         response = post(client, frame_files(), {"fx": fx}, format="npz")
         assert response.status_code == 200, response.text
+    for fields in ({"fx": "1e-300"}, {"fx": "1"}, {"fy": "34"}, {"cx": "1e308"}, {"cy": "-129"}):
+        error = assert_error_shape(post(client, frame_files(), fields), 422, "invalid_intrinsics")
+        assert "px" in error["message"] or "principal point" in error["message"]
 
 
 def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
@@ -327,7 +333,7 @@ BAD_INPUTS = {
     "png_sparse_without_scale": (422, "invalid_request"),
     "png8_sparse": (422, "wrong_dtype"),
     "scale_with_npy": (422, "invalid_request"),
-    "negative_fx": (422, "invalid_request"),
+    "negative_fx": (422, "invalid_intrinsics"),
     "nan_cx": (422, "invalid_request"),
 }
 

@@ -440,7 +440,7 @@ MALFORMED = {
     "empty_body": (400, "invalid_request", "not valid JSON"),
     "unknown_parameter": (400, "invalid_request", "parameters.zoom: Extra inputs"),
     "string_parameter": (400, "invalid_request", "parameters.fx: Input should be a valid number"),
-    "negative_fx": (400, "invalid_request", "parameters.fx: Input should be greater than"),
+    "negative_fx": (422, "invalid_intrinsics", "focal lengths must be positive pixels"),
     "unknown_output": (400, "invalid_request", "'depth', 'mask', 'points'"),
     "output_twice": (400, "invalid_request", "output mask is asked for more than once"),
     "no_outputs": (400, "invalid_request", "outputs is empty"),
