@@ -22,7 +22,7 @@ from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, parse_pose
 from sdcnet.service.camera import ServiceCamera, camera_frame
-from sdcnet.service.decode import CompletionRequest, decode_form
+from sdcnet.service.decode import CompletionRequest, InputLimits, decode_form
 from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
 from sdcnet.service.pose_schemas import PoseAlternative, PoseResponse, PoseTimings, PoseValue
@@ -176,7 +176,7 @@ def answer_pose(
     engine: Engine,
     targets: dict[str, Target],
     req: PoseRequest,
-    max_pixels: int,
+    limits: InputLimits,
     camera: ServiceCamera | None = None,
 ) -> tuple[PoseResponse, PhaseTimer]:
     """Check, complete (in the ``camera``'s frame), register one request; raises ``ApiError``
@@ -185,7 +185,7 @@ def answer_pose(
     init = read_init(req.init)
     timer = PhaseTimer()
     with timer("decode"):
-        frame = camera_frame(decode_form(req.frame, max_pixels), camera)
+        frame = camera_frame(decode_form(req.frame, limits), camera)
     done = complete_frame(engine, frame, timer, cloud_phase="cloud")
     with timer("cloud"):
         returns = back_project(frame.sparse, frame.sparse > 0, done.intrinsics)

@@ -38,8 +38,9 @@ def frame(size: int):
 def url(tmp_path_factory, tiny_model_path):
     model = tiny_model_path
     log = tmp_path_factory.mktemp("client-service") / "serve.log"
-    # one request at a time, so that concurrent clients meet 503s and must retry
-    with running_service(model, log, "--max-in-flight=1", "--retry-after=1") as address:
+    # one request at a time, none held waiting: concurrent clients meet 503s and must retry
+    flags = ("--max-in-flight=1", "--max-requests=1", "--retry-after=1")
+    with running_service(model, log, *flags) as address:
         yield address
 
 

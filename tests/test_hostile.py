@@ -297,10 +297,12 @@ CATALOGUE: dict[str, tuple[Case, int | None, str | None]] = {
         400,
         "unreadable_file",
     ),
+    # its header, found past the fill, declares 16 x 16: not the sparse map's size, refused
+    # before anything is decoded
     "jpeg_fill_byte_flood": (
         with_gray(lambda: b"\xff\xd8" + b"\xff" * (7 * 2**20) + jpeg_header(16, 16)[3:]),
-        400,
-        "unreadable_file",
+        422,
+        "wrong_shape",
     ),
     # decodes (8 MiB, within the pixel limit, from a 30 kB file), then refused: sizes differ
     "png_rgba16_at_the_pixel_limit": (

@@ -98,7 +98,7 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     response = post(client, sample, target="probe")
     assert response.status_code == 200, response.text
     phases = [part.split(";")[0] for part in response.headers["server-timing"].split(", ")]
-    assert phases == ["decode", "queue", "inference", "cloud", "registration"]
+    assert phases == ["decode", "queue", "inference", "cloud", "registration", "wait"]
     answer = response.json()
     rotation_deg, translation_m = pose_errors(parse_pose(answer["pose"]), truth)
     assert rotation_deg < ROTATION_DEG and translation_m < TRANSLATION_M

@@ -48,6 +48,7 @@ from sdcnet.service.settings import Settings, get_settings
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 8 * 2**20
 MAX_IN_FLIGHT = 2
+MAX_REQUESTS = 4
 
 
 def settings(model_path) -> Settings:
@@ -55,6 +56,7 @@ def settings(model_path) -> Settings:
         model_path=model_path,
         threads=1,
         max_in_flight=MAX_IN_FLIGHT,
+        max_requests=MAX_REQUESTS,
         max_pixels=MAX_PIXELS,
         max_upload_bytes=MAX_UPLOAD_BYTES,
         retry_after_s=2,
@@ -71,6 +73,7 @@ def url(model_path, tmp_path_factory):
     log = tmp_path_factory.mktemp("service") / "serve.log"
     flags = [f"--max-in-flight={MAX_IN_FLIGHT}", f"--max-pixels={MAX_PIXELS}"]
     flags += [f"--max-upload-bytes={MAX_UPLOAD_BYTES}", "--retry-after=2"]
+    flags += [f"--max-requests={MAX_REQUESTS}"]
     with running_service(model_path, log, *flags) as address:
         yield address
 
@@ -159,8 +162,10 @@ def test_model_metadata(client):
     assert meta["camera"] is None
     assert meta["limits"] == {
         "max_pixels": MAX_PIXELS,
+        "max_returns": Settings.model_fields["max_returns"].default,
         "max_upload_bytes": MAX_UPLOAD_BYTES,
         "max_in_flight": MAX_IN_FLIGHT,
+        "max_requests": MAX_REQUESTS,
     }
 
 

@@ -450,7 +450,7 @@ MALFORMED = {
     "no_data": (400, "invalid_request", "input returns has no values"),
     "json_data_wrong_count": (400, "invalid_request", "shape [256, 3] needs 768"),
     "json_gray_out_of_range": (400, "wrong_dtype", "UINT8 values lie in 0..255, got 300..300"),
-    "json_data_strings": (400, "wrong_dtype", "must hold FP32 numbers, got strings"),
+    "json_data_strings": (400, "wrong_dtype", "data must hold numbers, got strings"),
     "nan_return": (422, "invalid_depth", "returns must be finite numbers; return 0"),
     "return_outside_the_frame": (422, "invalid_returns", "outside the 64 x 64 image"),
     "no_return": (422, "no_returns", "no LIDAR return"),

@@ -7,17 +7,17 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
 from fastapi.dependencies.models import Dependant
-from fastapi.responses import Response
 from pydantic import WithJsonSchema
 from starlette.concurrency import run_in_threadpool
 
 from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX
 from sdcnet.service.decode import CompletionRequest
-from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep
+from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, input_limits
 from sdcnet.service.encode import MEDIA_TYPES
 from sdcnet.service.errors import ERROR_RESPONSES, ApiError
 from sdcnet.service.inference import SERVER_TIMING_HEADER, answer
 from sdcnet.service.schemas import CompletionResponse, ResponseFormat
+from sdcnet.service.spool import SpooledResponse
 
 router = APIRouter(tags=["inference"])
 
@@ -161,7 +161,7 @@ async def complete(
     response_format: Annotated[
         ResponseFormat, Query(alias="format", description="json, npz or ply")
     ] = ResponseFormat.json,
-) -> Response:
+) -> SpooledResponse:
     """Complete one frame: dense depth (metres, 0 off the mask), mask and point cloud.
 
     The LIDAR returns come as a dense map (`sparse`) or as a list (`returns`: a few hundred
@@ -171,10 +171,10 @@ async def complete(
     image size.
     """
     req = replace(frame, format=response_format)
-    result = await run_in_threadpool(answer, engine, req, settings.max_pixels, camera)
+    result = await run_in_threadpool(answer, engine, req, input_limits(settings), camera)
     request.app.state.metrics.observe_phases(result.timer.seconds)
     headers = {"Server-Timing": result.timer.server_timing()}
     if response_format is not ResponseFormat.json:
         name = f"sdcnet.{response_format.value}"
         headers["Content-Disposition"] = f'attachment; filename="{name}"'
-    return Response(result.body, media_type=MEDIA_TYPES[response_format], headers=headers)
+    return SpooledResponse(result.body, MEDIA_TYPES[response_format], headers)
