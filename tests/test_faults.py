@@ -71,6 +71,7 @@ def model_files(base: Path, good: Path) -> dict[str, Path]:
     nodes = [
         helper.make_node("Reshape", ["gray", "shape"], ["depth"]),
         helper.make_node("Identity", ["sparse"], ["foreground"]),
+        helper.make_node("Identity", ["sparse"], ["sigma"]),
     ]
     seven = helper.make_tensor("shape", TensorProto.INT64, [4], [1, 1, 7, 7])
     onnx.save(graph_model(nodes, metadata=metadata, initializers=(seven,)), paths["impostor"])
