@@ -3,10 +3,10 @@ and what a pod needs, from the settings.
 
 Every input is checked against ``max_pixels`` and ``max_upload_bytes`` before it is parsed,
 and everything a request builds follows its frame's pixels (the network's own work is a fixed
-``work_pixels`` per frame, one at a time), so an in-flight request holds at most its body and
-``BYTES_PER_PIXEL`` bytes per pixel of the largest frame. A request held in another phase
-(receiving its body, waiting for a place, sending its answer) holds its spools' memory, the
-rest of them on disk (``sdcnet.service.spool``).
+``work_pixels`` per frame, one at a time), so an in-flight request holds at most its body,
+``FIXED_MIB`` and ``BYTES_PER_PIXEL`` bytes per pixel of the largest frame. A request held in
+another phase (receiving its body, waiting for a place, sending its answer) holds its spools'
+memory, the rest of them on disk (``sdcnet.service.spool``).
 """
 
 from __future__ import annotations
@@ -21,10 +21,13 @@ MIB = 2**20
 #: arena grown by one frame), Python and the libraries, after valid frames on every route;
 #: measured 234 MiB. Each folder of targets (``--targets``) adds its own.
 WARM_MIB = 240
-#: Memory an in-flight request takes above the warm service per pixel of its frame, bytes,
-#: beside its body: measured at 2048 x 2048 (benchmarks.hostile B4, B8: a bright frame, all
-#: foreground, outlier removal, a JSON answer; 56 and 62 bytes a pixel beside the upload).
-BYTES_PER_PIXEL = 64
+#: Memory an in-flight request takes above the warm service beside its body: a fixed part,
+#: MiB, and bytes per pixel of its frame. Fitted to the worst frames measured, all foreground
+#: to the tiny model, outlier removal, a JSON answer (benchmarks.hostile B4, B8 and
+#: tests/test_hostile.py): 80 to 91 MiB at 1024 x 1024 with a 0.5 MiB body, 248 and 289 MiB
+#: at 2048 x 2048 with 12 and 40 MiB bodies.
+FIXED_MIB = 40
+BYTES_PER_PIXEL = 56
 #: Bytes of the largest answer per pixel of its frame: a JSON answer of a frame all foreground
 #: (float32 depth, uint8 mask, float32 x, y, z per pixel: 17 bytes, as base64).
 ANSWER_BYTES_PER_PIXEL = 23
@@ -52,7 +55,7 @@ class Budget:
 def budget(settings: Settings) -> Budget:
     """The memory and disk the settings allow the service to use at most."""
     upload = settings.max_upload_bytes
-    request = (BYTES_PER_PIXEL * settings.max_pixels + upload) / MIB
+    request = FIXED_MIB + (BYTES_PER_PIXEL * settings.max_pixels + upload) / MIB
     spools = settings.max_requests * 2 * SPOOL_MEMORY_BYTES / MIB
     answer = ANSWER_BYTES_PER_PIXEL * settings.max_pixels
     disk = (settings.max_requests * (upload + answer) + settings.max_in_flight * upload) / MIB

@@ -44,7 +44,7 @@ from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import Answer, Completed, Engine, PhaseTimer, complete_frame
 from sdcnet.service.schemas import CompletionSummary
 from sdcnet.service.spool import Spool
-from sdcnet.service.v2_json import JsonDataError, data_values, split_data
+from sdcnet.service.v2_json import DataArray, JsonDataError, data_values, split_data
 
 HEADER_LENGTH = "Inference-Header-Content-Length"
 #: numpy type of each datatype the protocol's tensors use here; binary data is little-endian.
@@ -212,8 +212,10 @@ def _bad(message: str, code: str = "invalid_request", status: int = 400) -> ApiE
     return ApiError(status, code, message)
 
 
-def split_body(body: bytes, header_length: str | None) -> tuple[bytes, memoryview]:
-    """The JSON header and the binary data of a request body."""
+def split_body(
+    body: bytes | bytearray, header_length: str | None
+) -> tuple[bytes | bytearray, memoryview]:
+    """The JSON header and the binary data of a request body (without a copy of the body)."""
     if header_length is None:
         return body, memoryview(b"")
     try:
@@ -225,7 +227,7 @@ def split_body(body: bytes, header_length: str | None) -> tuple[bytes, memoryvie
             f"{HEADER_LENGTH} is {length} but the body holds {len(body)} bytes: the JSON "
             "header's length must be between 1 and the body's"
         )
-    return body[:length], memoryview(body)[length:]
+    return bytes(memoryview(body)[:length]), memoryview(body)[length:]
 
 
 def _validation_message(exc: ValidationError) -> str:
@@ -245,10 +247,10 @@ class ParsedRequest:
     is ``[k]``: ``arrays[k]`` holds its bytes; ``sdcnet.service.v2_json``)."""
 
     request: InferenceRequest
-    arrays: list[memoryview]
+    arrays: list[DataArray]
 
 
-def parse_request(header: bytes) -> ParsedRequest:
+def parse_request(header: bytes | bytearray) -> ParsedRequest:
     try:
         split = split_data(header)
     except JsonDataError as exc:
@@ -503,7 +505,7 @@ def write_answer(spool: Spool, document: dict[str, Any], outputs: list[Output]) 
 
 def answer(
     engine: Engine,
-    body: bytes,
+    body: bytes | bytearray,
     header_length: str | None,
     limits: InputLimits,
     camera: ServiceCamera | None = None,

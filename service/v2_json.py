@@ -52,15 +52,25 @@ class JsonDataError(ValueError):
 
 
 @dataclass(frozen=True)
+class DataArray:
+    """Where an input's ``data`` array lies in its header: bytes ``start`` (its "[") to
+    ``end`` (its "]", included)."""
+
+    header: bytes | bytearray
+    start: int
+    end: int
+
+
+@dataclass(frozen=True)
 class SplitHeader:
     """A JSON header with each ``data`` array replaced by ``[k]`` (k: its index in
-    ``arrays``), and the arrays' bytes (a view of the header each)."""
+    ``arrays``), and where the arrays lie."""
 
     skeleton: bytes
-    arrays: list[memoryview]
+    arrays: list[DataArray]
 
 
-def split_data(header: bytes) -> SplitHeader:
+def split_data(header: bytes | bytearray) -> SplitHeader:
     """Take every ``"data": [...]`` array out of a JSON header (see the module doc); raises
     ``JsonDataError`` for a header of too many strings or arrays, or too large without its
     data."""
@@ -87,7 +97,7 @@ def split_data(header: bytes) -> SplitHeader:
         if any(opening < s < closing for s, _ in strings[k + 1 :]):
             raise JsonDataError("an input's data must hold numbers, got strings", "wrong_dtype")
         pieces += [view[at:opening], b"[%d]" % len(arrays)]
-        arrays.append(view[opening : closing + 1])
+        arrays.append(DataArray(header, opening, closing))
         at = closing + 1
     skeleton = b"".join([*pieces, view[at:]])
     if len(skeleton) > MAX_SKELETON_BYTES:
@@ -110,7 +120,7 @@ def _is_data_key(token: bytes) -> bool:
         return False
 
 
-def _closing_bracket(header: bytes, opening: int) -> int:
+def _closing_bracket(header: bytes | bytearray, opening: int) -> int:
     """Index of the bracket that closes the array opened at ``opening`` (``bytes.find``:
     one pass over the array, a Python step per bracket)."""
     depth = 1
@@ -127,23 +137,27 @@ def _closing_bracket(header: bytes, opening: int) -> int:
     raise JsonDataError("the inference header is not valid JSON: an array is not closed")
 
 
+_NOT_SPACE = re.compile(rb"[^ \t\r\n]")
+
+
 def data_values(
-    name: str, array: memoryview, dtype: np.dtype, datatype: str, shape: tuple[int, ...]
+    name: str, array: DataArray, dtype: np.dtype, datatype: str, shape: tuple[int, ...]
 ) -> np.ndarray:
     """The values of one input's JSON ``data`` (flat, or nested by rows for a 2-D shape) as
-    an array of ``dtype`` and ``shape``; their count is checked before they are parsed.
-    Raises ``JsonDataError``."""
-    text = bytes(array)
+    an array of ``dtype`` and ``shape``; counted in place (no copy) against the shape before
+    they are read. Raises ``JsonDataError``."""
+    header, first, last = array.header, array.start + 1, array.end
     expected = math.prod(shape)
-    body = text[1:-1].strip()
-    count = body.count(b",") + 1 if body else 0
+    empty = _NOT_SPACE.search(header, first, last) is None
+    count = 0 if empty else header.count(b",", first, last) + 1
     if count != expected:
         raise JsonDataError(
             f"input {name}: data holds {count} values, shape {list(shape)} needs {expected}"
         )
-    if text.translate(None, _NUMBER_TEXT):
+    body = bytes(header[first:last]).strip()
+    if body.translate(None, _NUMBER_TEXT):
         raise JsonDataError(f"input {name}: data must hold {datatype} numbers", "wrong_dtype")
-    if dtype.kind == "u" and any(c in text for c in _FRACTION_TEXT):
+    if dtype.kind == "u" and any(c in body for c in _FRACTION_TEXT):
         raise JsonDataError(
             f"input {name}: data must hold {datatype} numbers, got fractions", "wrong_dtype"
         )

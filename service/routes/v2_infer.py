@@ -77,7 +77,9 @@ async def infer(
             "unsupported_media_type",
             f"Content-Encoding {encoding} is not supported: send the body uncompressed",
         )
-    body = await request.body()
+    body = bytearray()  # grown in place: Request.body() holds the chunks and their join
+    async for chunk in request.stream():
+        body += chunk
     header_length = request.headers.get(v2.HEADER_LENGTH)
     answer = await run_in_threadpool(
         v2.answer, engine, body, header_length, input_limits(settings), camera
