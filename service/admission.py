@@ -40,6 +40,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from sdcnet.service.deps import MODEL_NAME
 from sdcnet.service.errors import ApiError, error_response, is_v2, route_path
 from sdcnet.service.metrics import ServiceMetrics
+from sdcnet.service.protocol import ABORT
 from sdcnet.service.settings import Settings
 from sdcnet.service.spool import Spool
 
@@ -48,6 +49,14 @@ INFERENCE_PATHS = ("/complete", f"/v2/models/{MODEL_NAME}/infer", "/pose")
 
 class _ClientGoneError(Exception):
     """The client went away, or read its answer too slowly: nobody to answer."""
+
+
+def abort(scope: Scope) -> None:
+    """Drop the request's connection at once, what it has not sent of its answer with it
+    (``sdcnet.service.protocol``; a close would wait for a client that reads nothing)."""
+    drop = scope.get("extensions", {}).get(ABORT)
+    if drop is not None:
+        drop()
 
 
 def declared_length(scope: Scope) -> int:
@@ -198,6 +207,7 @@ class Admission:
                 await self._answer(self._overloaded(why), answer, scope, receive)
         except _ClientGoneError:
             self.metrics.failure.labels("disconnected").inc()
+            abort(scope)
             return
         except Exception:
             self.metrics.failure.labels("internal_error").inc()
@@ -216,10 +226,11 @@ class Admission:
     async def _answer(
         self, error: ApiError, answer: _Answer, scope: Scope, receive: Receive
     ) -> None:
-        """Answer ``error`` unless the answer has started (then the connection is closed)."""
+        """Answer ``error`` unless the answer has started (then the connection is aborted)."""
         self.metrics.failure.labels(error.code).inc()
         answer.code = error.code
         if answer.started:
+            abort(scope)
             return
         response = error_response(
             error.status_code, error.code, error.message, error.headers, v2=is_v2(scope)
@@ -227,7 +238,7 @@ class Admission:
         try:
             await response(scope, receive, answer.send)
         except _ClientGoneError:  # nobody reads it
-            return
+            abort(scope)
 
     async def _receive(self, receive: Receive, spool: Spool) -> None:
         """The whole body into ``spool``; 408 for a body too slow, 413 too large;

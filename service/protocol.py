@@ -8,16 +8,28 @@ must deliver each request's complete head within ``head_timeout_s`` of being ope
 its previous answer, else it is closed; while a request is being answered, the service's own
 deadlines apply (``sdcnet.service.admission``).
 
+It also hands the application a way to drop a connection (``ABORT`` in the request scope's
+``extensions``): uvicorn closes a connection whose answer failed by flushing what it has
+buffered first, so a client that reads nothing keeps it (and a megabyte of answer) open for
+ever; the service drops such a connection once its answer is late
+(``sdcnet.service.admission``).
+
 The class extends uvicorn's ``H11Protocol`` through the hooks it calls on a connection
-(``connection_made``, ``on_response_complete``, ``connection_lost``) and reads its ``cycle``,
-``transport`` and ``loop``; ``tests/test_hostile.py`` holds it to the behaviour.
+(``connection_made``, ``handle_events``, ``on_response_complete``, ``connection_lost``) and
+reads its ``cycle``, ``scope``, ``transport`` and ``loop``; ``tests/test_deadlines.py`` holds
+it to the behaviour.
 """
 
 from __future__ import annotations
 
 import asyncio
+import socket
+import struct
 
 from uvicorn.protocols.http.h11_impl import H11Protocol
+
+#: Key of the request scope's ``extensions`` whose value drops the connection (no argument).
+ABORT = "sdcnet.abort"
 
 
 class HeadDeadlineProtocol(H11Protocol):
@@ -30,6 +42,19 @@ class HeadDeadlineProtocol(H11Protocol):
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         self._arm()
+
+    def handle_events(self) -> None:
+        super().handle_events()
+        if self.scope is not None:  # the request just parsed, before its application runs
+            self.scope.setdefault("extensions", {})[ABORT] = self._drop
+
+    def _drop(self) -> None:
+        """Reset the connection: what the kernel still holds of the answer goes too (a plain
+        close would leave it, and the socket, to a client that reads nothing)."""
+        sock = self.transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        self.transport.abort()
 
     def on_response_complete(self) -> None:
         super().on_response_complete()
