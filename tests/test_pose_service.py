@@ -148,6 +148,15 @@ def test_the_model_lists_the_targets_and_their_surface_samples_draw_them(client)
             "invalid_init",
             "not a rotation",
         ),
+        # read with a size and a depth limit: a RecursionError was a 500
+        ({"target": "probe", "init": "[" * 100_000 + "]" * 100_000}, "invalid_init", "16384"),
+        ({"target": "probe", "init": "[" * 900 + "]" * 900}, "invalid_init", "nested more"),
+        (
+            {"target": "probe", "init": '{"t": [' + "1" * 5000 + ', 0, 0], "R": []}'},
+            "invalid_init",
+            "'t' holds NaN or infinite values",
+        ),
+        ({"target": "probe", "cx": "1e308"}, "invalid_intrinsics", "principal point"),
         ({}, "invalid_request", "target"),
         ({"target": "probe", "targett": "x"}, "invalid_request", "unknown form field"),
     ],

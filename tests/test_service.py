@@ -134,6 +134,7 @@ def test_probes_answer_under_short_and_kserve_names(client):
     for path in ("/health", "/v2/health/live"):
         response = client.get(path)
         assert response.status_code == 200 and response.json() == {"live": True}
+        assert "server" not in response.headers  # uvicorn's "Server: uvicorn" is off
     for path in ("/ready", "/v2/health/ready", "/v2/models/sdcnet/ready"):
         response = client.get(path)
         assert response.status_code == 200 and response.json() == {"ready": True}
