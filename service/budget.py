@@ -24,8 +24,8 @@ WARM_MIB = 240
 #: Memory an in-flight request takes above the warm service beside its body: a fixed part,
 #: MiB, and bytes per pixel of its frame. Fitted to the worst frames measured, all foreground
 #: to the tiny model, outlier removal, a JSON answer (benchmarks.hostile B4, B8 and
-#: tests/test_hostile.py): 80 to 91 MiB at 1024 x 1024 with a 0.5 MiB body, 248 and 289 MiB
-#: at 2048 x 2048 with 12 and 40 MiB bodies.
+#: tests/test_hostile.py): 80 to 91 MiB at 1024 x 1024 with a 0.5 MiB body, 248 to 259 and
+#: 279 to 306 MiB at 2048 x 2048 with 12 and 40 MiB bodies (four runs).
 FIXED_MIB = 40
 BYTES_PER_PIXEL = 56
 #: Bytes of the largest answer per pixel of its frame: a JSON answer of a frame all foreground
