@@ -26,7 +26,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from sdcnet.camera import Intrinsics
+from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 
 #: Distortion models taken, and how many coefficients each has (OpenCV's order k1, k2, p1, p2,
 #: k3, k4, k5, k6; plumb_bob is ROS's name for the first 4 or 5, rational_polynomial for 8).
@@ -276,23 +276,21 @@ def _camera_matrix(fields: dict, path: Path) -> np.ndarray:
 
 
 def _intrinsics(K: np.ndarray, width: int, height: int, path: Path) -> Intrinsics:
-    """Pinhole intrinsics of a checked camera matrix: positive focal lengths, no skew, the
-    principal point within half an image of the image."""
+    """Pinhole intrinsics of a checked camera matrix: no skew, and what every request's
+    intrinsics must be (``sdcnet.camera.check_intrinsics``: focal lengths of a field of view
+    under 150 degrees, the principal point within half an image of the image)."""
     if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
         rows = "; ".join(" ".join(f"{v:g}" for v in row) for row in K)
         raise _error(path, f"is not a camera matrix (fx 0 cx; 0 fy cy; 0 0 1): {rows}")
     fx, fy, cx, cy, skew = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
-    if fx <= 0 or fy <= 0:
-        raise _error(path, f"focal lengths must be positive pixels, got fx {fx:g}, fy {fy:g}")
-    if abs(skew) > 1e-9 * fx:
+    if abs(skew) > 1e-9 * abs(fx):
         raise _error(path, f"the camera matrix has a skew of {skew:g}; sdcnet takes none")
-    if not (-width / 2 <= cx <= 1.5 * width and -height / 2 <= cy <= 1.5 * height):
-        raise _error(
-            path,
-            f"the principal point ({cx:g}, {cy:g}) lies far outside the {width} x {height} "
-            "image: cx and cy are pixels, about (width - 1) / 2 and (height - 1) / 2",
+    try:
+        return check_intrinsics(
+            Intrinsics(float(fx), float(fy), float(cx), float(cy), width, height)
         )
-    return Intrinsics(float(fx), float(fy), float(cx), float(cy), width, height)
+    except IntrinsicsError as exc:
+        raise _error(path, str(exc)) from None
 
 
 def _named_model(fields: dict, path: Path) -> str | None:

@@ -70,6 +70,8 @@ class RegistrationConfig:
     voxel_of_longest: float = 1 / 32  # the observed cloud is downsampled to this voxel
     coarse_voxel_of_longest: float = 1 / 16  # ... and to this one for the hypotheses' GICP
     max_cloud_points: int = 50_000  # larger clouds are thinned first
+    max_input_points: int = 2**20  # a cloud given is thinned to this before anything else
+    max_refine_returns: int = 8192  # LIDAR returns refined on, at most: more are thinned
     field_cell_of_longest: float = 1 / 48  # distance field cell
     coarse_truncation_of_longest: float = 0.05  # distances above it score the same
     grid_cell_of_longest: float = 1 / 40  # cell of the consistency grid
@@ -768,6 +770,14 @@ def _returns_rmse(model: TargetModel, returns: np.ndarray, best: Hypothesis) -> 
     return _distances(model, returns, best.pose, model.config.returns_max_distance_m / 3)[1]
 
 
+def _thinned(points: np.ndarray, most: int) -> np.ndarray:
+    """Every k-th of (N, 3) ``points``, at most ``most`` of them: an even thinning of a cloud
+    in pixel order. Bounds the time and memory of one registration: a bright 2048 x 2048
+    frame's 4M points and 262,144 returns took 19 s (the returns' refinement, holding the
+    interpreter all along), 0.7 s thinned."""
+    return points[:: -(-len(points) // most)] if len(points) > most else points
+
+
 def _finite(points: np.ndarray) -> np.ndarray:
     """The rows of (N, 3) ``points`` that are finite, float64."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
@@ -788,7 +798,7 @@ def estimate_pose(
     config = model.config
     timings: dict[str, float] = {}
     started, cpu_started = time.perf_counter(), time.thread_time()
-    cloud = _finite(cloud)
+    cloud = _finite(_thinned(cloud, config.max_input_points))
     if len(cloud) < config.min_points:
         raise UnusableCloudError(
             "too_few_points",
@@ -810,7 +820,7 @@ def estimate_pose(
             "are needed for a pose",
         )
     if returns is not None:
-        returns = _finite(returns)
+        returns = _finite(_thinned(returns, config.max_refine_returns))
         returns = returns if len(returns) >= config.min_points else None
     timings["prepare_ms"] = (time.perf_counter() - started) * 1e3
     refined = tracked = None

@@ -135,14 +135,7 @@ def create_app(
     app.state.targets = {}
     app.state.camera = None
     install_error_handlers(app)
-    app.add_middleware(
-        Admission,
-        metrics=service_metrics,
-        max_in_flight=settings.max_in_flight,
-        max_upload_bytes=settings.max_upload_bytes,
-        retry_after_s=settings.retry_after_s,
-        body_timeout_s=settings.body_timeout_s,
-    )
+    app.add_middleware(Admission, metrics=service_metrics, settings=settings)
     for router in ROUTERS:
         app.include_router(router)
     complete_openapi(app)

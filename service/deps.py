@@ -8,6 +8,7 @@ from typing import Annotated
 from fastapi import Depends, Request
 
 from sdcnet.service.camera import ServiceCamera
+from sdcnet.service.decode import InputLimits
 from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import Engine
 from sdcnet.service.settings import Settings, get_settings
@@ -28,6 +29,11 @@ async def get_engine(request: Request) -> Engine:
             headers={"Retry-After": str(settings.retry_after_s)},
         )
     return engine
+
+
+def input_limits(settings: Settings) -> InputLimits:
+    """How large the inputs of a request may be, from the settings."""
+    return InputLimits(settings.max_pixels, settings.max_returns)
 
 
 async def get_targets(request: Request) -> dict[str, Target]:

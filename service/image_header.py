@@ -124,8 +124,8 @@ def _check_png_data(data: bytes, header: ImageHeader) -> None:
                 while pending and inflated <= limit:
                     inflated += len(inflater.decompress(pending, _INFLATE_STEP))
                     pending = inflater.unconsumed_tail
-            except zlib.error as exc:
-                raise HeaderError(f"PNG image data is corrupt ({exc})") from exc
+            except zlib.error:
+                raise HeaderError("PNG image data is corrupt: it does not inflate") from None
             if inflated > limit:
                 raise HeaderError(
                     f"PNG image data inflates beyond the {limit} bytes its declared "

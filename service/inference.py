@@ -19,15 +19,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sdcnet.camera import Intrinsics
+from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.compact import mask_window
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
 from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.service.camera import ServiceCamera, camera_frame
-from sdcnet.service.decode import CompletionRequest, Frame, decode_form
+from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
 from sdcnet.service.encode import encode
+from sdcnet.service.errors import ApiError
 from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, FrameSummary, Timings
+from sdcnet.service.spool import Spool
 
 PHASES = ("decode", "queue", "inference", "encode")
 SELF_TEST_SIZE = 64  # pixels, side of the frame the model completes once at start-up
@@ -36,7 +38,8 @@ SELF_TEST_SIZE = 64  # pixels, side of the frame the model completes once at sta
 #: The ``Server-Timing`` header of an inference answer, for the routes' OpenAPI declarations.
 SERVER_TIMING_HEADER = {
     "Server-Timing": {
-        "description": "milliseconds per phase: decode, queue, inference, encode",
+        "description": "milliseconds per phase: decode, queue (for the model), inference, "
+        "encode, and wait (for an in-flight place, before decode)",
         "required": True,
         "schema": {"type": "string"},
     }
@@ -158,9 +161,10 @@ class Completed:
 def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Frame) -> Intrinsics:
     """The request's intrinsics; each value not given is the configured camera's
     (``frame.camera``, at the image's size), else the model's ``default`` scaled to the
-    image."""
+    image. 422 ``invalid_intrinsics`` for values that cannot describe the frame
+    (``sdcnet.camera.check_intrinsics``, the one check of every route)."""
     base = frame.camera or default.scaled(width, height)
-    return Intrinsics(
+    K = Intrinsics(
         base.fx if frame.fx is None else frame.fx,
         base.fy if frame.fy is None else frame.fy,
         base.cx if frame.cx is None else frame.cx,
@@ -168,6 +172,10 @@ def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Fram
         width,
         height,
     )
+    try:
+        return check_intrinsics(K)
+    except IntrinsicsError as exc:
+        raise ApiError(422, "invalid_intrinsics", str(exc)) from None
 
 
 def complete_frame(
@@ -199,23 +207,35 @@ def complete_frame(
 
 @dataclass(frozen=True)
 class Answer:
-    """An answer's body, its extra headers and the time each phase took."""
+    """An answer's body (spooled: ``SpooledResponse`` sends it), its extra headers and the
+    time each phase took."""
 
-    body: bytes
+    body: Spool
     timer: PhaseTimer
     headers: dict[str, str] = field(default_factory=dict)
     media_type: str = "application/octet-stream"
 
 
 def answer(
-    engine: Engine, req: CompletionRequest, max_pixels: int, camera: ServiceCamera | None = None
+    engine: Engine,
+    req: CompletionRequest,
+    limits: InputLimits,
+    camera: ServiceCamera | None = None,
 ) -> Answer:
     """Decode (into the ``camera``'s frame), complete, encode one ``POST /complete``; raises
     ``ApiError`` for bad input."""
     timer = PhaseTimer()
     with timer("decode"):
-        frame = camera_frame(decode_form(req, max_pixels), camera)
+        frame = camera_frame(decode_form(req, limits), camera)
     done = complete_frame(engine, frame, timer)
-    with timer("encode"):
-        encoded = encode(req.format, done.depth, done.mask.astype(np.uint8), done.points)
-    return Answer(encoded.finish(done.summary(engine.model, timer)), timer)
+    spool = Spool()
+    try:
+        with timer("encode"):
+            mask = done.mask.view(np.uint8)
+            frame_summary = done.frame_summary(engine.model)
+            encoded = encode(req.format, done.depth, mask, done.points, frame_summary, spool)
+        encoded.finish(done.summary(engine.model, timer))
+    except BaseException:
+        spool.close()
+        raise
+    return Answer(spool, timer)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 from dataclasses import dataclass
 
@@ -21,7 +22,7 @@ from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, parse_pose
 from sdcnet.service.camera import ServiceCamera, camera_frame
-from sdcnet.service.decode import CompletionRequest, decode_form
+from sdcnet.service.decode import CompletionRequest, InputLimits, decode_form
 from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
 from sdcnet.service.pose_schemas import PoseAlternative, PoseResponse, PoseTimings, PoseValue
@@ -65,16 +66,61 @@ def find_target(targets: dict[str, Target], name: str) -> Target:
     raise ApiError(404, "unknown_target", f"unknown target {name!r}; known targets: {known}")
 
 
+#: Longest ``init`` read, characters: a pose as the service writes it takes about 600.
+MAX_INIT_CHARS = 16 * 2**10
+#: Deepest nesting of ``init``: a pose's rotation matrix is a list of lists in an object (3).
+MAX_INIT_DEPTH = 4
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+
+
 def read_init(text: str | None) -> Pose | None:
-    """``init`` as a pose, or 422 ``invalid_init`` saying what is wrong with it."""
+    """``init`` as a pose, or 422 ``invalid_init`` saying what is wrong with it; its length
+    and nesting are checked before it is parsed."""
     if text is None:
         return None
-    try:
-        return parse_pose(json.loads(text))
+    if len(text) > MAX_INIT_CHARS:
+        raise ApiError(
+            422,
+            "invalid_init",
+            f"init holds {len(text)} characters, more than the {MAX_INIT_CHARS} a pose needs",
+        )
+    if _depth(text) > MAX_INIT_DEPTH:
+        raise ApiError(
+            422,
+            "invalid_init",
+            f"init is nested more than {MAX_INIT_DEPTH} levels deep: a pose is "
+            '{"R": 3 x 3, "t": 3} or {"quaternion_wxyz": 4, "t": 3}',
+        )
+    try:  # integers read as floats: a 5000-digit one is infinite, and refused as such
+        value = json.loads(text, parse_int=float, parse_constant=_not_a_number)
     except json.JSONDecodeError as exc:
-        raise ApiError(422, "invalid_init", f"init is not valid JSON: {exc}") from exc
+        raise ApiError(
+            422,
+            "invalid_init",
+            f"init is not valid JSON (line {exc.lineno}, column {exc.colno})",
+        ) from None
     except ValueError as exc:
-        raise ApiError(422, "invalid_init", f"init: {exc}") from exc
+        raise ApiError(422, "invalid_init", f"init: {exc}") from None
+    try:
+        return parse_pose(value)
+    except ValueError as exc:
+        raise ApiError(422, "invalid_init", f"init: {exc}") from None
+
+
+def _depth(text: str) -> int:
+    """How deep the arrays and objects of JSON ``text`` nest (its strings skipped)."""
+    depth = deepest = 0
+    for char in _JSON_STRING.sub('""', text):
+        if char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    return deepest
+
+
+def _not_a_number(name: str) -> float:
+    raise ValueError(f"{name} is not a number of JSON")
 
 
 def _pose_value(pose: Pose) -> PoseValue:
@@ -130,7 +176,7 @@ def answer_pose(
     engine: Engine,
     targets: dict[str, Target],
     req: PoseRequest,
-    max_pixels: int,
+    limits: InputLimits,
     camera: ServiceCamera | None = None,
 ) -> tuple[PoseResponse, PhaseTimer]:
     """Check, complete (in the ``camera``'s frame), register one request; raises ``ApiError``
@@ -139,7 +185,7 @@ def answer_pose(
     init = read_init(req.init)
     timer = PhaseTimer()
     with timer("decode"):
-        frame = camera_frame(decode_form(req.frame, max_pixels), camera)
+        frame = camera_frame(decode_form(req.frame, limits), camera)
     done = complete_frame(engine, frame, timer, cloud_phase="cloud")
     with timer("cloud"):
         returns = back_project(frame.sparse, frame.sparse > 0, done.intrinsics)

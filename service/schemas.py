@@ -186,7 +186,9 @@ class ModelMetadata(BaseModel):
         default=None, description="the camera of sdc-serve --camera; null: none configured"
     )
     metrics: dict[str, Any] = Field(description="the model card's headline metrics")
-    limits: dict[str, int] = Field(description="max_pixels, max_upload_bytes, max_in_flight")
+    limits: dict[str, int] = Field(
+        description="max_pixels, max_returns, max_upload_bytes, max_in_flight, max_requests"
+    )
     targets: list[TargetInfo] = Field(
         default_factory=list, description="known targets of POST /pose (sdc-serve --targets)"
     )

@@ -38,8 +38,9 @@ def frame(size: int):
 def url(tmp_path_factory, tiny_model_path):
     model = tiny_model_path
     log = tmp_path_factory.mktemp("client-service") / "serve.log"
-    # one request at a time, so that concurrent clients meet 503s and must retry
-    with running_service(model, log, "--max-in-flight=1", "--retry-after=1") as address:
+    # one request at a time, none held waiting: concurrent clients meet 503s and must retry
+    flags = ("--max-in-flight=1", "--max-requests=1", "--retry-after=1")
+    with running_service(model, log, *flags) as address:
         yield address
 
 
@@ -160,8 +161,8 @@ def test_a_4xx_answer_exits_3_with_the_service_message(url, tmp_path, capsys):
     argv = ["infer", str(tmp_path / "gray.png"), str(tmp_path / "sparse.npy"), "--url", url]
     assert main([*argv, "--fx", "-5", "--out", str(tmp_path / "out")]) == 3
     err = capsys.readouterr().err
-    assert "400 invalid_request" in err
-    assert "parameters.fx: Input should be greater than or equal to 0.001" in err
+    assert "422 invalid_intrinsics" in err
+    assert "focal lengths must be positive pixels, got fx -5" in err
     assert not (tmp_path / "out").exists()
     with Client(url) as client, pytest.raises(ServiceError) as raised:
         client.complete(s.gray, np.zeros_like(s.sparse))

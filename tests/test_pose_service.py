@@ -98,7 +98,7 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     response = post(client, sample, target="probe")
     assert response.status_code == 200, response.text
     phases = [part.split(";")[0] for part in response.headers["server-timing"].split(", ")]
-    assert phases == ["decode", "queue", "inference", "cloud", "registration"]
+    assert phases == ["decode", "queue", "inference", "cloud", "registration", "wait"]
     answer = response.json()
     rotation_deg, translation_m = pose_errors(parse_pose(answer["pose"]), truth)
     assert rotation_deg < ROTATION_DEG and translation_m < TRANSLATION_M
@@ -148,6 +148,15 @@ def test_the_model_lists_the_targets_and_their_surface_samples_draw_them(client)
             "invalid_init",
             "not a rotation",
         ),
+        # read with a size and a depth limit: a RecursionError was a 500
+        ({"target": "probe", "init": "[" * 100_000 + "]" * 100_000}, "invalid_init", "16384"),
+        ({"target": "probe", "init": "[" * 900 + "]" * 900}, "invalid_init", "nested more"),
+        (
+            {"target": "probe", "init": '{"t": [' + "1" * 5000 + ', 0, 0], "R": []}'},
+            "invalid_init",
+            "'t' holds NaN or infinite values",
+        ),
+        ({"target": "probe", "cx": "1e308"}, "invalid_intrinsics", "principal point"),
         ({}, "invalid_request", "target"),
         ({"target": "probe", "targett": "x"}, "invalid_request", "unknown form field"),
     ],

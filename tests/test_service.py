@@ -48,6 +48,7 @@ from sdcnet.service.settings import Settings, get_settings
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 8 * 2**20
 MAX_IN_FLIGHT = 2
+MAX_REQUESTS = 4
 
 
 def settings(model_path) -> Settings:
@@ -55,6 +56,7 @@ def settings(model_path) -> Settings:
         model_path=model_path,
         threads=1,
         max_in_flight=MAX_IN_FLIGHT,
+        max_requests=MAX_REQUESTS,
         max_pixels=MAX_PIXELS,
         max_upload_bytes=MAX_UPLOAD_BYTES,
         retry_after_s=2,
@@ -71,6 +73,7 @@ def url(model_path, tmp_path_factory):
     log = tmp_path_factory.mktemp("service") / "serve.log"
     flags = [f"--max-in-flight={MAX_IN_FLIGHT}", f"--max-pixels={MAX_PIXELS}"]
     flags += [f"--max-upload-bytes={MAX_UPLOAD_BYTES}", "--retry-after=2"]
+    flags += [f"--max-requests={MAX_REQUESTS}"]
     with running_service(model_path, log, *flags) as address:
         yield address
 
@@ -131,6 +134,7 @@ def test_probes_answer_under_short_and_kserve_names(client):
     for path in ("/health", "/v2/health/live"):
         response = client.get(path)
         assert response.status_code == 200 and response.json() == {"live": True}
+        assert "server" not in response.headers  # uvicorn's "Server: uvicorn" is off
     for path in ("/ready", "/v2/health/ready", "/v2/models/sdcnet/ready"):
         response = client.get(path)
         assert response.status_code == 200 and response.json() == {"ready": True}
@@ -159,8 +163,10 @@ def test_model_metadata(client):
     assert meta["camera"] is None
     assert meta["limits"] == {
         "max_pixels": MAX_PIXELS,
+        "max_returns": Settings.model_fields["max_returns"].default,
         "max_upload_bytes": MAX_UPLOAD_BYTES,
         "max_in_flight": MAX_IN_FLIGHT,
+        "max_requests": MAX_REQUESTS,
     }
 
 
@@ -194,10 +200,16 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     assert "inference;dur=" in response.headers["server-timing"]
 
 
-def test_odd_focal_lengths_are_served_at_the_nearest_supported_scale(client):
-    for fx in ("1e-9", "1.0", "1e9"):
+def test_intrinsics_are_those_of_a_pinhole_of_the_frame_or_422(client):
+    """Focal lengths from a 150 degree field of view (34.3 px across 256) to 1e9 px are
+    served at the fixed cost of a frame; shorter ones, and a principal point far outside, get
+    422 on every route (the Open Inference Protocol's: tests/test_wire.py)."""
+    for fx in ("34.5", "1e9"):
         response = post(client, frame_files(), {"fx": fx}, format="npz")
         assert response.status_code == 200, response.text
+    for fields in ({"fx": "1e-300"}, {"fx": "1"}, {"fy": "34"}, {"cx": "1e308"}, {"cy": "-129"}):
+        error = assert_error_shape(post(client, frame_files(), fields), 422, "invalid_intrinsics")
+        assert "px" in error["message"] or "principal point" in error["message"]
 
 
 def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
@@ -327,7 +339,7 @@ BAD_INPUTS = {
     "png_sparse_without_scale": (422, "invalid_request"),
     "png8_sparse": (422, "wrong_dtype"),
     "scale_with_npy": (422, "invalid_request"),
-    "negative_fx": (422, "invalid_request"),
+    "negative_fx": (422, "invalid_intrinsics"),
     "nan_cx": (422, "invalid_request"),
 }
 

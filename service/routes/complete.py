@@ -7,16 +7,17 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
 from fastapi.dependencies.models import Dependant
-from fastapi.responses import Response
 from pydantic import WithJsonSchema
 from starlette.concurrency import run_in_threadpool
 
+from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX
 from sdcnet.service.decode import CompletionRequest
-from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep
+from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, input_limits
 from sdcnet.service.encode import MEDIA_TYPES
 from sdcnet.service.errors import ERROR_RESPONSES, ApiError
 from sdcnet.service.inference import SERVER_TIMING_HEADER, answer
 from sdcnet.service.schemas import CompletionResponse, ResponseFormat
+from sdcnet.service.spool import SpooledResponse
 
 router = APIRouter(tags=["inference"])
 
@@ -49,14 +50,18 @@ async def strict_form(request: Request) -> None:
 _JSON_SCHEMA_BOUNDS = {"gt": "exclusiveMinimum", "ge": "minimum", "le": "maximum"}
 
 
-def optional_number(description: str, **bounds: float) -> Any:
-    """The type of an optional, finite numeric form field within ``bounds`` (gt, ge, le).
+def optional_number(
+    description: str, documented: dict[str, float] | None = None, **bounds: float
+) -> Any:
+    """The type of an optional, finite numeric form field within ``bounds`` (gt, ge, le);
+    ``documented``: bounds the schema states that a later check enforces.
 
     A form leaves such a field out, it cannot send null: the OpenAPI schema says a plain
     number with its bounds (not "number or null"), so that clients and fuzzers generated from
     the schema never send the string "null".
     """
-    schema = {"type": "number", **{_JSON_SCHEMA_BOUNDS[k]: v for k, v in bounds.items()}}
+    stated = {**(documented or {}), **bounds}
+    schema = {"type": "number", **{_JSON_SCHEMA_BOUNDS[k]: v for k, v in stated.items()}}
     return Annotated[
         float | None,
         Form(allow_inf_nan=False, description=description, **bounds),
@@ -75,8 +80,14 @@ def optional_file(description: str) -> Any:
 
 
 _DEFAULT_K = "default: the camera's (sdc-serve --camera), else the model's; scaled to the image"
-FocalLength = optional_number(f"pixels; {_DEFAULT_K}", gt=0)
-PrincipalPoint = optional_number(f"pixels; {_DEFAULT_K}")
+#: Intrinsics are checked once the image's size is known, alike on every route
+#: (``sdcnet.camera.check_intrinsics``: 422 invalid_intrinsics); the schema states the part of
+#: it that does not depend on the size.
+FocalLength = optional_number(
+    f"pixels, of a field of view under {MAX_FIELD_OF_VIEW_DEG:g} degrees; {_DEFAULT_K}",
+    documented={"gt": 0, "le": MAX_FOCAL_PX},
+)
+PrincipalPoint = optional_number(f"pixels, within half an image of the image; {_DEFAULT_K}")
 #: Metres per unit of a 16-bit PNG sparse map, bounded so that every depth stays finite and
 #: non-zero in float32 (65535 units x 1000 m; 1 unit x 1 micrometre).
 DepthScale = optional_number("metres per unit of a 16-bit PNG sparse", ge=1e-6, le=1e3)
@@ -150,7 +161,7 @@ async def complete(
     response_format: Annotated[
         ResponseFormat, Query(alias="format", description="json, npz or ply")
     ] = ResponseFormat.json,
-) -> Response:
+) -> SpooledResponse:
     """Complete one frame: dense depth (metres, 0 off the mask), mask and point cloud.
 
     The LIDAR returns come as a dense map (`sparse`) or as a list (`returns`: a few hundred
@@ -160,10 +171,10 @@ async def complete(
     image size.
     """
     req = replace(frame, format=response_format)
-    result = await run_in_threadpool(answer, engine, req, settings.max_pixels, camera)
+    result = await run_in_threadpool(answer, engine, req, input_limits(settings), camera)
     request.app.state.metrics.observe_phases(result.timer.seconds)
     headers = {"Server-Timing": result.timer.server_timing()}
     if response_format is not ResponseFormat.json:
         name = f"sdcnet.{response_format.value}"
         headers["Content-Disposition"] = f'attachment; filename="{name}"'
-    return Response(result.body, media_type=MEDIA_TYPES[response_format], headers=headers)
+    return SpooledResponse(result.body, MEDIA_TYPES[response_format], headers)

@@ -82,8 +82,10 @@ async def model_metadata(
         metrics=info.metrics,
         limits={
             "max_pixels": settings.max_pixels,
+            "max_returns": settings.max_returns,
             "max_upload_bytes": settings.max_upload_bytes,
             "max_in_flight": settings.max_in_flight,
+            "max_requests": settings.max_requests,
         },
         targets=[TargetInfo(**target.describe()) for target in targets.values()],
     )

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, TargetsDep
+from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, TargetsDep, input_limits
 from sdcnet.service.errors import ERROR_RESPONSES
 from sdcnet.service.inference import SERVER_TIMING_HEADER
 from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose, find_target
@@ -39,7 +39,9 @@ POSE_ERRORS: dict[int | str, dict] = {
             "headers": {
                 "Server-Timing": {
                     **SERVER_TIMING_HEADER["Server-Timing"],
-                    "description": "milliseconds per phase: " + ", ".join(POSE_PHASES),
+                    "description": "milliseconds per phase: "
+                    + ", ".join(POSE_PHASES)
+                    + ", and wait (for an in-flight place, before decode)",
                 }
             },
         },
@@ -72,7 +74,7 @@ async def pose(
     """
     req = PoseRequest(frame=frame, target=target, init=init)
     answer, timer = await run_in_threadpool(
-        answer_pose, engine, targets, req, settings.max_pixels, camera
+        answer_pose, engine, targets, req, input_limits(settings), camera
     )
     request.app.state.metrics.observe_phases(timer.seconds)
     return JSONResponse(

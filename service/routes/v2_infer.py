@@ -10,13 +10,13 @@ without a copy, and its JSON header is validated by ``sdcnet.service.v2.Inferenc
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
-from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from sdcnet.service import v2
-from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep
+from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep, input_limits
 from sdcnet.service.errors import V2_ERROR_RESPONSES, ApiError
 from sdcnet.service.inference import SERVER_TIMING_HEADER
+from sdcnet.service.spool import SpooledResponse
 
 router = APIRouter(tags=["open inference protocol v2"])
 
@@ -62,7 +62,7 @@ _HEADER_LENGTH_DOC = {
 )
 async def infer(
     request: Request, engine: EngineDep, settings: SettingsDep, camera: CameraDep
-) -> Response:
+) -> SpooledResponse:
     """Complete one frame. Inputs: `gray` (UINT8 or UINT16, [H, W]) and `sparse` (FP32,
     [H, W], metres, 0 = no return) or `returns` (FP32, [N, 3]: row, column, Z metres).
     Parameters: `fx`, `fy`, `cx`, `cy` (pixels; default: the camera's, else the model's),
@@ -77,11 +77,13 @@ async def infer(
             "unsupported_media_type",
             f"Content-Encoding {encoding} is not supported: send the body uncompressed",
         )
-    body = await request.body()
+    body = bytearray()  # grown in place: Request.body() holds the chunks and their join
+    async for chunk in request.stream():
+        body += chunk
     header_length = request.headers.get(v2.HEADER_LENGTH)
     answer = await run_in_threadpool(
-        v2.answer, engine, body, header_length, settings.max_pixels, camera
+        v2.answer, engine, body, header_length, input_limits(settings), camera
     )
     request.app.state.metrics.observe_phases(answer.timer.seconds)
     headers = {"Server-Timing": answer.timer.server_timing(), **answer.headers}
-    return Response(answer.body, media_type=answer.media_type, headers=headers)
+    return SpooledResponse(answer.body, answer.media_type, headers)
