@@ -78,10 +78,11 @@ def test_infer_writes_four_files_that_match_the_service(url, frame_files, tmp_pa
 
     header = (out / "points.ply").read_bytes().split(b"end_header\n")[0].decode()
     assert f"element vertex {len(expected['points'])}" in header
-    points, comments = read_ply(out / "points.ply")
+    cloud = read_ply(out / "points.ply")
+    points = cloud.points
     np.testing.assert_array_equal(points, expected["points"])
     assert len(points) == np.count_nonzero(expected["depth"]) > 3000
-    assert f"model_version {TINY_VERSION}" in comments
+    assert f"model_version {TINY_VERSION}" in cloud.comments
 
     preview = cv2.imread(str(out / "preview.png"))
     assert preview.shape == (320, 4 * 320 + 3 * 4, 3)

@@ -11,6 +11,8 @@ subprocess.
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 import subprocess
 import sys
@@ -33,6 +35,7 @@ from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.rigid import Pose, axis_angle, parse_pose, pose_errors
 from sdcnet.service.app import create_app
+from sdcnet.service.pose import POSE_SIGMA_QUANTILE
 from sdcnet.service.settings import Settings
 
 LONGEST_M = 9.0
@@ -117,6 +120,33 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     assert post(client, sample, target="probe", init=json.dumps(quaternion)).json()["tracked"]
 
 
+def test_the_registration_gets_the_points_whose_sigma_it_can_trust(client, frames):
+    """The completed points registered are those of sigma up to the frame's 90th percentile,
+    or up to max_sigma when the request gives it: counted against POST /complete's sigma of
+    the same frame."""
+    sample, truth = frames[0]
+    whole = client.post("/complete", files=files_of(sample)).json()
+    depth, mask, sigma = (
+        np.load(io.BytesIO(base64.b64decode(whole[k]["npy_base64"])), allow_pickle=False)
+        for k in ("depth", "mask", "sigma")
+    )
+    valid = mask.astype(bool) & (depth > 0)
+    limit = float(np.quantile(sigma[valid], POSE_SIGMA_QUANTILE))
+    answer = post(client, sample, target="probe").json()
+    max_sigma = float(np.quantile(sigma[valid], 0.5))
+    given = post(
+        client, sample, target="probe", init=json.dumps(answer["pose"]), max_sigma=repr(max_sigma)
+    ).json()
+    for registered, cut in ((answer, limit), (given, max_sigma)):
+        assert registered["sigma_limit_m"] == cut
+        completion = registered["completion"]
+        assert completion["point_count"] == np.count_nonzero(valid & (sigma <= cut))
+        uncertain = np.count_nonzero(valid & (sigma > cut))
+        assert completion["uncertain_removed"] == uncertain > 0
+        rotation_deg, translation_m = pose_errors(parse_pose(registered["pose"]), truth)
+        assert rotation_deg < ROTATION_DEG and translation_m < TRANSLATION_M
+
+
 def test_the_returns_as_a_list_give_the_pose_of_the_dense_map(client, frames):
     sample, _ = frames[1]
     dense = post(client, sample, target="probe").json()
@@ -157,6 +187,7 @@ def test_the_model_lists_the_targets_and_their_surface_samples_draw_them(client)
             "'t' holds NaN or infinite values",
         ),
         ({"target": "probe", "cx": "1e308"}, "invalid_intrinsics", "principal point"),
+        ({"target": "probe", "max_sigma": "-1"}, "invalid_max_sigma", "positive finite number"),
         ({}, "invalid_request", "target"),
         ({"target": "probe", "targett": "x"}, "invalid_request", "unknown form field"),
     ],
