@@ -242,6 +242,12 @@ def test_sdc_client_pose_prints_the_pose_and_draws_the_target(url, frames, tmp_p
     printed = capsys.readouterr().out
     assert "pose of probe" in printed and "from scratch" in printed
     answer = json.loads((tmp_path / "out" / "pose.json").read_text())
+    completion = answer["completion"]
+    assert (
+        f"cloud     {completion['point_count']:,} points registered (depth sigma <= "
+        f"{100 * answer['sigma_limit_m']:.1f} cm; {completion['uncertain_removed']:,} more "
+        "uncertain left out)"
+    ) in printed
     assert pose_errors(parse_pose(answer["pose"]), truth)[0] < ROTATION_DEG
     preview = cv2.imread(str(tmp_path / "out" / "preview.png"))
     assert preview.shape[0] == 320 and preview.shape[1] >= 2 * 320
@@ -268,13 +274,14 @@ def test_the_python_api_tracks_and_fetches_the_targets_samples(url, frames):
     with Client(url) as client:
         first = client.pose(sample.gray, sample.sparse, "probe")
         listed = client.pose(sample.gray, None, "probe", returns=returns_from_dense(sample.sparse))
-        again = client.pose(sample.gray, sample.sparse, "probe", init=first.pose)
+        again = client.pose(sample.gray, sample.sparse, "probe", init=first.pose, max_sigma=0.09)
         points = client.target_points("probe")
         with pytest.raises(ServiceError, match="unknown_target"):
             client.target_points("nope")
         with pytest.raises(ServiceError, match="unknown_target"):
             client.pose(sample.gray, sample.sparse, "no such/target")
     assert not first.answer["tracked"] and again.answer["tracked"]
+    assert again.answer["sigma_limit_m"] == 0.09 != first.answer["sigma_limit_m"]
     assert pose_errors(first.pose, truth)[0] < ROTATION_DEG
     assert listed.answer["pose"] == first.answer["pose"]  # what the client sends is the frame
     assert pose_errors(again.pose, truth)[0] < ROTATION_DEG and first.latency_s > 0
