@@ -78,6 +78,7 @@ class Completion:
     depth: np.ndarray  # float32 (H, W), camera-frame Z in metres, 0 outside the mask
     mask: np.ndarray  # bool (H, W), True = spacecraft
     points: np.ndarray  # float32 (N, 3), camera frame (x right, y down, z forward), metres
+    sigma: np.ndarray  # float32 (H, W), the depth's 1-sigma uncertainty, metres, 0 off the mask
     meta: dict[str, Any] = field(default_factory=dict)  # the service's summary (meta.json)
     latency_s: float = 0.0  # round trip, seconds, retries included
 
@@ -328,6 +329,7 @@ class Client:
         cy: float | None = None,
         depth_scale: float | None = None,
         outlier_removal: bool = False,
+        max_sigma: float | None = None,
         float16_depth: bool = False,
     ) -> Completion:
         """Complete one frame.
@@ -338,13 +340,16 @@ class Client:
         unit), or a list as an (N, 3) array or ``.npy`` or a CSV file (``row,col,z_m``); or
         ``returns``, an (N, 3) array (row, column, Z metres). Intrinsics in pixels; those not
         given are the service's camera's (``sdc-serve --camera``), else the model's, scaled to
-        the image size. ``float16_depth`` halves the depth's bytes at a precision of 8 mm
-        (``sdcnet.compact``); by default the depth is exact.
+        the image size. ``max_sigma`` (metres) leaves the points whose sigma is above it out
+        of the cloud (depth, mask and sigma stay whole). ``float16_depth`` halves the depth's
+        bytes at a precision of 8 mm (``sdcnet.compact``); by default the depth is exact.
         """
         image = gray_array(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)
         parameters: dict[str, Any] = _given_intrinsics(fx, fy, cx, cy)
         parameters["outlier_removal"] = outlier_removal
+        if max_sigma is not None:
+            parameters["max_sigma"] = float(max_sigma)
         body, headers = protocol.request_body(image, listed, parameters, float16_depth)
         start = time.perf_counter()
         response = self._request("POST", protocol.PATH, content=body, headers=headers)
@@ -355,7 +360,9 @@ class Client:
             )
         except protocol.AnswerError as exc:
             raise ClientError(f"unexpected answer from {self.url}{protocol.PATH}: {exc}") from exc
-        return Completion(answer.depth, answer.mask, answer.points, answer.meta, latency)
+        return Completion(
+            answer.depth, answer.mask, answer.points, answer.sigma, answer.meta, latency
+        )
 
     def pose(
         self,
@@ -371,15 +378,20 @@ class Client:
         cy: float | None = None,
         depth_scale: float | None = None,
         outlier_removal: bool = False,
+        max_sigma: float | None = None,
     ) -> PoseAnswer:
         """The pose of the known ``target`` in one frame (``POST /pose``): from scratch, or
         refined from ``init`` (a previous answer's ``pose``, a ``Pose`` or its JSON dict) to
         track. The frame's inputs as for ``complete`` (``sparse=None`` with ``returns``); the
-        returns travel as a list, the gray image as its file (a PNG of an array)."""
+        returns travel as a list, the gray image as its file (a PNG of an array). The points
+        registered are those of sigma up to ``max_sigma`` (metres), else up to the frame's
+        90th percentile of sigma (the service's choice)."""
         image, gray_file = _gray_file(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)
         fields = {k: repr(v) for k, v in _given_intrinsics(fx, fy, cx, cy).items()}
         fields["outlier_removal"] = "true" if outlier_removal else "false"
+        if max_sigma is not None:
+            fields["max_sigma"] = repr(float(max_sigma))
         fields["target"] = target
         if init is not None:
             fields["init"] = json.dumps(init.as_dict() if isinstance(init, Pose) else init)

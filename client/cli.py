@@ -1,7 +1,7 @@
 """``sdc-client``: talk to an sdcnet service from the command line.
 
     sdc-client infer GRAY SPARSE [--out DIR] [--fx F --fy F --cx C --cy C] [--depth-scale S]
-                                 [--float16-depth]
+                                 [--max-sigma M] [--float16-depth]
         SPARSE: a .npy (metres), a 16-bit PNG (--depth-scale) or a row,col,z_m returns CSV
     sdc-client batch DIR_OR_MANIFEST --out DIR [--concurrency N] [--split test]
     sdc-client pose GRAY SPARSE --target NAME [--init POSE_JSON] [--out DIR] [intrinsics...]
@@ -64,6 +64,12 @@ def _frame_options() -> argparse.ArgumentParser:
     frame.add_argument(
         "--outlier-removal", action="store_true", help="statistical outlier removal on points"
     )
+    frame.add_argument(
+        "--max-sigma",
+        type=float,
+        help="metres: leave the points whose depth's 1-sigma uncertainty is above it out of "
+        "the cloud",
+    )
     return frame
 
 
@@ -125,7 +131,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _frame_kwargs(args: argparse.Namespace) -> dict[str, float]:
-    names = ("fx", "fy", "cx", "cy", "depth_scale")
+    names = ("fx", "fy", "cx", "cy", "depth_scale", "max_sigma")
     return {k: getattr(args, k) for k in names if getattr(args, k) is not None}
 
 

@@ -58,6 +58,8 @@ def pose_summary(answer: PoseAnswer, target: str, url: str, written: list[Path])
     angle = np.degrees(2 * np.arccos(np.clip(pose.quaternion_wxyz()[0], -1, 1)))
     t = answer.timings_ms
     sigma = a.get("rotation_sigma_deg")
+    cut = a.get("sigma_limit_m")
+    limit = "no point" if cut is None else f"depth sigma <= {100 * cut:.1f} cm"
     lines = [
         f"pose of {target} at {url} ({'tracked' if a['tracked'] else 'from scratch'})",
         f"  t         [{pose.t[0]:.3f}, {pose.t[1]:.3f}, {pose.t[2]:.3f}] m "
@@ -70,6 +72,8 @@ def pose_summary(answer: PoseAnswer, target: str, url: str, written: list[Path])
         f"{a['consistency']:.2f}, returns rmse "
         + (f"{a['returns_rmse_m']:.3f} m" if a.get("returns_rmse_m") is not None else "n/a")
         + (f", sigma {sigma:.2f} deg" if sigma is not None else ""),
+        f"  cloud     {a['completion']['point_count']:,} points registered ({limit}; "
+        f"{a['completion']['uncertain_removed']:,} more uncertain left out)",
         "  ambiguous "
         + (f"yes: {len(a['alternatives'])} alternatives" if a["ambiguous"] else "no"),
         f"  latency   {answer.latency_s * 1e3:.1f} ms round trip; server inference "

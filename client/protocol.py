@@ -4,10 +4,10 @@ answer layouts (``sdcnet.compact``) turned back into full-frame arrays.
 
 The request is a small JSON header followed by the raw gray image (1 byte a pixel) and the
 LIDAR returns as a list (12 bytes a return): no image codec, no multipart form, no dense map.
-The answer holds the depth and the mask of the spacecraft's region (the smallest window that
-holds the mask: everything outside it is 0), the mask 8 pixels a byte, and the points;
-``read_answer`` pastes them into full frames, equal to the service's full-frame answer bit
-for bit (float16 depth, on request, is not).
+The answer holds the depth, the mask and the depth's uncertainty (sigma) of the spacecraft's
+region (the smallest window that holds the mask: everything outside it is 0), the mask 8
+pixels a byte, and the points; ``read_answer`` pastes them into full frames, equal to the
+service's full-frame answer bit for bit (float16 depth, on request, is not).
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ def request_body(
     float16_depth: bool = False,
 ) -> tuple[bytes, dict[str, str]]:
     """(body, headers) of one request: gray uint8/uint16 (H, W), returns float32 (N, 3) (row,
-    column, Z metres), ``parameters`` (intrinsics in pixels, ``outlier_removal``); depth as
-    float16 residuals when ``float16_depth``."""
+    column, Z metres), ``parameters`` (intrinsics in pixels, ``outlier_removal``,
+    ``max_sigma`` in metres); depth as float16 residuals when ``float16_depth``."""
     gray = np.ascontiguousarray(gray)
     returns = np.ascontiguousarray(returns, "<f4")
     depth_parameters = {"binary_data": True, "region": True, "fp16": float16_depth}
@@ -64,6 +64,7 @@ def request_body(
             {"name": "depth", "parameters": depth_parameters},
             {"name": "mask", "parameters": {"binary_data": True, "region": True, "bits": True}},
             {"name": "points", "parameters": {"binary_data": True}},
+            {"name": "sigma", "parameters": {"binary_data": True, "region": True}},
         ],
     }
     encoded = json.dumps(header).encode()
@@ -79,6 +80,7 @@ class Answer:
     depth: np.ndarray  # float32 (H, W) metres
     mask: np.ndarray  # bool (H, W)
     points: np.ndarray  # float32 (N, 3) metres
+    sigma: np.ndarray  # float32 (H, W) metres
     meta: dict[str, Any]  # the summary, shaped as POST /complete's (meta.json)
 
 
@@ -129,6 +131,7 @@ def read_answer(body: bytes, header_length: str | None, shape: tuple[int, int]) 
         depth = _full_frame(arrays["depth"], outputs["depth"], shape)
         mask = _full_frame(arrays["mask"], outputs["mask"], shape).astype(bool, copy=False)
         points = arrays["points"].reshape(-1, 3).copy()  # writable, not a view of the body
-        return Answer(depth, mask, points, summary(document))
+        sigma = _full_frame(arrays["sigma"], outputs["sigma"], shape)
+        return Answer(depth, mask, points, sigma, summary(document))
     except (ValueError, KeyError, TypeError) as exc:
         raise AnswerError(f"{type(exc).__name__}: {exc}") from exc

@@ -21,6 +21,7 @@ It is vectorised over the grid: O(N (2r + 1)^2), ~0.3 s for a million points on 
 from __future__ import annotations
 
 import io
+from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
@@ -72,6 +73,17 @@ def back_project(
         band[:, 2] = z
         at += count
     return points
+
+
+def point_pixels(points: np.ndarray, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols), int64, of the pixels ``back_project`` made (N, 3) camera-frame points
+    (metres, z > 0) from: their projections, rounded. Exact for float32 points of frames up
+    to tens of thousands of pixels a side (a projection lands within 0.01 px of its pixel)."""
+    points = np.asarray(points, np.float64)
+    z = points[:, 2]
+    cols = np.rint(points[:, 0] * intrinsics.fx / z + intrinsics.cx).astype(np.int64)
+    rows = np.rint(points[:, 1] * intrinsics.fy / z + intrinsics.cy).astype(np.int64)
+    return rows, cols
 
 
 def statistical_outliers(
@@ -177,43 +189,90 @@ def _band_scores(
     return score, count
 
 
-def ply_header(count: int, comments: tuple[str, ...] | list[str] = ()) -> bytes:
-    """The header of a binary little-endian PLY of ``count`` points (float32 x, y, z): the
-    file is this, then the points' bytes."""
+#: The coordinates every vertex of sdcnet's PLY files starts with (float32, metres).
+XYZ = ("x", "y", "z")
+
+
+def ply_header(
+    count: int,
+    comments: tuple[str, ...] | list[str] = (),
+    properties: tuple[str, ...] = (),
+) -> bytes:
+    """The header of a binary little-endian PLY of ``count`` vertices: float32 x, y, z
+    (metres), then one float32 per name of ``properties`` (e.g. ``sigma``, metres). The file
+    is this, then the vertices' bytes (``ply_vertices``); readers that ignore properties they
+    do not know read the x, y, z of such a file as of one without them."""
     lines = ["ply", "format binary_little_endian 1.0"]
     for comment in comments:
         if "\n" in comment or "\r" in comment:
             raise ValueError("a PLY comment must be one line")
         lines.append(f"comment {comment}")
-    lines += [
-        f"element vertex {count}",
-        "property float x",
-        "property float y",
-        "property float z",
-        "end_header",
-    ]
+    names = (*XYZ, *properties)
+    for name in properties:
+        if not name.isidentifier() or names.count(name) > 1:
+            raise ValueError(f"{name!r} cannot be a PLY property: a new identifier is needed")
+    lines.append(f"element vertex {count}")
+    lines += [f"property float {name}" for name in names]
+    lines.append("end_header")
     return ("\n".join(lines) + "\n").encode("ascii")
 
 
-def ply_bytes(points: np.ndarray, comments: tuple[str, ...] | list[str] = ()) -> bytes:
-    """Binary little-endian PLY of (N, 3) points (float32 x, y, z; metres)."""
+def ply_vertices(points: np.ndarray, properties: tuple[np.ndarray, ...] = ()) -> np.ndarray:
+    """(N, 3 + k) little-endian float32 rows: each point's x, y, z (metres) then its value of
+    each of the k ``properties`` ((N,) arrays, in ``ply_header``'s order): the vertex data of
+    a PLY. Raises ``ValueError`` for points that are not (N, 3) or properties not (N,)."""
     points = np.asarray(points)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points must be (N, 3), got {points.shape}")
-    header = ply_header(len(points), comments)
-    return header + np.ascontiguousarray(points, dtype=_PLY_DTYPE).tobytes()
+    for values in properties:
+        if np.shape(values) != (len(points),):
+            raise ValueError(f"a property must hold one value per point, got {np.shape(values)}")
+    rows = np.empty((len(points), 3 + len(properties)), _PLY_DTYPE)
+    rows[:, :3] = points
+    for k, values in enumerate(properties):
+        rows[:, 3 + k] = values
+    return rows
 
 
-def write_ply(path: str | Path, points: np.ndarray, comments: tuple[str, ...] = ()) -> Path:
-    """Write ``points`` as a binary PLY file; returns its path."""
+def ply_bytes(
+    points: np.ndarray,
+    comments: tuple[str, ...] | list[str] = (),
+    properties: dict[str, np.ndarray] | None = None,
+) -> bytes:
+    """Binary little-endian PLY of (N, 3) points (float32 x, y, z; metres) and, per point, the
+    float32 values of ``properties`` (name -> (N,) array, e.g. ``{"sigma": ...}``)."""
+    properties = properties or {}
+    vertices = ply_vertices(points, tuple(properties.values()))
+    return ply_header(len(vertices), comments, tuple(properties)) + vertices.tobytes()
+
+
+def write_ply(
+    path: str | Path,
+    points: np.ndarray,
+    comments: tuple[str, ...] = (),
+    properties: dict[str, np.ndarray] | None = None,
+) -> Path:
+    """Write ``points`` (and their ``properties``, as ``ply_bytes``) as a binary PLY file;
+    returns its path."""
     path = Path(path)
-    path.write_bytes(ply_bytes(points, comments))
+    path.write_bytes(ply_bytes(points, comments, properties))
     return path
 
 
-def read_ply(source: str | Path | bytes | BinaryIO) -> tuple[np.ndarray, list[str]]:
-    """(points (N, 3) float32, comments) of a binary little-endian PLY with one float x, y, z
-    vertex element: the layout ``ply_bytes`` writes. Raises ValueError for anything else."""
+@dataclass(frozen=True)
+class PlyCloud:
+    """A PLY file's points (N, 3) float32 metres, its header comments and the values of its
+    other vertex properties (name -> (N,) float32), in the file's order."""
+
+    points: np.ndarray
+    comments: list[str]
+    properties: dict[str, np.ndarray]
+
+
+def read_ply(source: str | Path | bytes | BinaryIO) -> PlyCloud:
+    """The cloud of a binary little-endian PLY with one vertex element of float x, y, z and
+    any further float properties: the layout ``ply_bytes`` writes. Raises ValueError for
+    anything else."""
     if isinstance(source, bytes):
         stream: BinaryIO = io.BytesIO(source)
     elif isinstance(source, str | Path):
@@ -247,10 +306,15 @@ def read_ply(source: str | Path | bytes | BinaryIO) -> tuple[np.ndarray, list[st
             fields.append(rest)
         elif keyword != "obj_info":
             raise ValueError(f"unexpected PLY header line {line!r}")
-    if count is None or fields != ["float x", "float y", "float z"]:
+    kinds = [field.partition(" ")[0] for field in fields]
+    names = [field.partition(" ")[2] for field in fields]
+    unique = len(set(names)) == len(names)
+    if count is None or names[:3] != list(XYZ) or set(kinds) != {"float"} or not unique:
         raise ValueError(f"unsupported PLY layout: vertex {count} with properties {fields}")
-    data = stream.read(count * 3 * _PLY_DTYPE.itemsize)
-    if len(data) != count * 3 * _PLY_DTYPE.itemsize:
+    width = len(fields) * _PLY_DTYPE.itemsize
+    data = stream.read(count * width)
+    if len(data) != count * width:
         raise ValueError(f"PLY data is truncated: {count} vertices announced")
-    points = np.frombuffer(data, _PLY_DTYPE).reshape(count, 3).astype(np.float32)
-    return points, comments
+    vertices = np.frombuffer(data, _PLY_DTYPE).reshape(count, len(fields)).astype(np.float32)
+    extra = {name: vertices[:, 3 + k].copy() for k, name in enumerate(names[3:])}
+    return PlyCloud(np.ascontiguousarray(vertices[:, :3]), comments, extra)

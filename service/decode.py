@@ -57,7 +57,8 @@ class InputLimits:
 @dataclass(frozen=True)
 class CompletionRequest:
     """The fields of one ``POST /complete``: file bytes (``sparse`` or ``returns``, one of
-    the two), intrinsics in pixels (``None`` = the model's, scaled), the answer's format."""
+    the two), intrinsics in pixels (``None`` = the model's, scaled), ``max_sigma`` in metres
+    (``None``: no limit), the answer's format."""
 
     gray: bytes
     sparse: bytes | None = None
@@ -68,6 +69,7 @@ class CompletionRequest:
     cx: float | None = None
     cy: float | None = None
     outlier_removal: bool = False
+    max_sigma: float | None = None
     format: ResponseFormat = ResponseFormat.json
 
 
@@ -76,7 +78,8 @@ class Frame:
     """One request's validated inputs, whatever protocol brought them: gray uint8/uint16
     (H, W); sparse float32 (H, W) metres, 0 = no return, at least one return; intrinsics in
     pixels, ``None`` = the default: ``camera``, the configured camera's at the frame's size
-    (``sdcnet.service.camera``), else the model's, scaled to the image."""
+    (``sdcnet.service.camera``), else the model's, scaled to the image; ``max_sigma``, metres:
+    points whose depth's uncertainty is above it leave the cloud (``None``: no limit)."""
 
     gray: np.ndarray
     sparse: np.ndarray
@@ -85,12 +88,26 @@ class Frame:
     cx: float | None = None
     cy: float | None = None
     outlier_removal: bool = False
+    max_sigma: float | None = None
     camera: Intrinsics | None = None
+
+
+def check_max_sigma(max_sigma: float | None) -> float | None:
+    """``max_sigma`` (metres) when it is a positive finite number or ``None``, else 422
+    ``invalid_max_sigma``: the one check of every route."""
+    if max_sigma is None or (math.isfinite(max_sigma) and max_sigma > 0):
+        return max_sigma
+    raise ApiError(
+        422,
+        "invalid_max_sigma",
+        f"max_sigma must be a positive finite number of metres, got {max_sigma!r}",
+    )
 
 
 def decode_form(req: CompletionRequest, limits: InputLimits) -> Frame:
     """The frame of a ``POST /complete`` form: image bytes, and a sparse map or returns; the
     sizes of both are checked against the image's declared size before either is decoded."""
+    max_sigma = check_max_sigma(req.max_sigma)
     if (req.sparse is None) == (req.returns is None):
         given = "both" if req.sparse is not None else "neither"
         raise ApiError(
@@ -117,7 +134,9 @@ def decode_form(req: CompletionRequest, limits: InputLimits) -> Frame:
         returns = decode_returns(req.returns, most, (header.width, header.height))
         gray = decode_gray(req.gray, limits.max_pixels, header)
         sparse = sparse_from_returns(returns, gray.shape)
-    return Frame(gray, sparse, req.fx, req.fy, req.cx, req.cy, req.outlier_removal)
+    return Frame(
+        gray, sparse, req.fx, req.fy, req.cx, req.cy, req.outlier_removal, max_sigma=max_sigma
+    )
 
 
 def frame_of(
@@ -129,7 +148,9 @@ def frame_of(
 ) -> Frame:
     """The frame of arrays already in memory (Open Inference Protocol tensors): gray uint8 or
     uint16 (H, W), and a float32 sparse map (H, W) or float32 returns (N, 3), checked as the
-    form's files are; ``options`` are ``Frame``'s intrinsics and ``outlier_removal``."""
+    form's files are; ``options`` are ``Frame``'s intrinsics, ``outlier_removal`` and
+    ``max_sigma``."""
+    check_max_sigma(options.get("max_sigma"))
     height, width = gray.shape
     _too_large("gray", width, height, limits.max_pixels)
     if sparse is not None:

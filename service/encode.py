@@ -7,10 +7,11 @@ own buffers a slice at a time, so an answer costs the memory of its arrays and o
 (``SLICE_BYTES``), whatever its size; the spool keeps 2 MiB in memory and the rest on disk.
 
 - json: ``CompletionResponse``, arrays as base64 of their ``.npy`` bytes (exact round trip);
-  the arrays come first, then the summary's fields;
+  the arrays (depth, mask, points, sigma) come first, then the summary's fields;
 - npz: a zip (stored, not deflated: speed over size) of ``depth.npy``, ``mask.npy``,
-  ``points.npy`` and ``meta.json`` (the summary), read by ``numpy.load``;
-- ply: the point cloud alone, binary little-endian, the summary's essentials as comments.
+  ``points.npy``, ``sigma.npy`` and ``meta.json`` (the summary), read by ``numpy.load``;
+- ply: the point cloud alone, binary little-endian, each vertex x, y, z and its sigma
+  (float32, metres), the summary's essentials as comments.
 """
 
 from __future__ import annotations
@@ -20,13 +21,16 @@ import io
 import json
 import zipfile
 from collections.abc import Iterator
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from sdcnet.pointcloud import ply_header
+from sdcnet.pointcloud import ply_header, ply_vertices
 from sdcnet.service.schemas import CompletionSummary, FrameSummary, ResponseFormat
 from sdcnet.service.spool import Spool
+
+if TYPE_CHECKING:
+    from sdcnet.service.inference import Completed
 
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
 #: Bytes of an array encoded at a time (a multiple of 3, so that base64 slices join).
@@ -106,11 +110,19 @@ class _Npz:
         self.zip.close()
 
 
+#: The per-vertex properties of a PLY answer after x, y, z (float32, metres).
+PLY_PROPERTIES = ("sigma",)
+
+
 class _Ply:
-    def __init__(self, points: np.ndarray, frame: FrameSummary, spool: Spool):
-        spool.write(ply_header(len(points), ply_comments(frame)))
-        for piece in array_slices(np.ascontiguousarray(points, "<f4")):
-            spool.write(piece)
+    """The vertices are interleaved (x, y, z, sigma) a slice of ``SLICE_BYTES`` at a time."""
+
+    def __init__(self, points: np.ndarray, sigma: np.ndarray, frame: FrameSummary, spool: Spool):
+        spool.write(ply_header(len(points), ply_comments(frame), PLY_PROPERTIES))
+        step = max(1, SLICE_BYTES // (4 * (3 + len(PLY_PROPERTIES))))
+        for start in range(0, len(points), step):
+            rows = ply_vertices(points[start : start + step], (sigma[start : start + step],))
+            spool.write(memoryview(rows).cast("B"))
 
     def finish(self, summary: CompletionSummary) -> None:
         pass  # the header said all there is to say
@@ -121,28 +133,24 @@ def ply_comments(frame: FrameSummary) -> list[str]:
     k = frame.intrinsics
     return [
         "sdcnet point cloud: camera frame (x right, y down, z forward), metres",
+        "sigma: the depth's 1-sigma uncertainty, metres",
         f"model_version {frame.model_version}",
         f"provider {frame.provider}",
         f"image {frame.width} x {frame.height}, fx {k.fx:.3f} fy {k.fy:.3f} "
         f"cx {k.cx:.3f} cy {k.cy:.3f}",
         f"outliers_removed {frame.outliers_removed}",
+        f"uncertain_removed {frame.uncertain_removed}",
     ]
 
 
-def encode(
-    fmt: ResponseFormat,
-    depth: np.ndarray,
-    mask: np.ndarray,
-    points: np.ndarray,
-    frame: FrameSummary,
-    spool: Spool,
-) -> Encoded:
-    """Write the arrays for ``fmt`` into ``spool``: depth float32 (H, W) metres, mask uint8
-    (H, W), points float32 (N, 3) metres; ``frame``: the summary without timings (the PLY
-    header's)."""
-    arrays = {"depth": depth, "mask": mask, "points": points}
+def encode(fmt: ResponseFormat, done: Completed, frame: FrameSummary, spool: Spool) -> Encoded:
+    """Write the arrays of a completed frame for ``fmt`` into ``spool``: depth float32 (H, W)
+    metres, mask uint8 (H, W), points float32 (N, 3) metres, sigma float32 (H, W) metres (PLY:
+    each point's); ``frame``: the summary without timings (the PLY header's)."""
+    if fmt is ResponseFormat.ply:
+        return _Ply(done.points, done.point_sigma, frame, spool)
+    mask = done.mask.view(np.uint8)
+    arrays = {"depth": done.depth, "mask": mask, "points": done.points, "sigma": done.sigma}
     if fmt is ResponseFormat.json:
         return _Json(arrays, spool)
-    if fmt is ResponseFormat.npz:
-        return _Npz(arrays, spool)
-    return _Ply(points, frame, spool)
+    return _Npz(arrays, spool)

@@ -114,23 +114,36 @@ def self_test(model: OnnxModel) -> None:
             f"{model.path} loads but cannot complete a {SELF_TEST_SIZE} x {SELF_TEST_SIZE} "
             f"test frame, so it would fail every request: {type(exc).__name__}: {exc}"
         ) from exc
-    if result.depth.dtype != np.float32:
-        raise ModelLoadError(f"{model.path} answers {result.depth.dtype} depth, not float32")
+    for name, array in (("depth", result.depth), ("sigma", result.sigma)):
+        if array is None or array.dtype != np.float32:
+            kind = "no" if array is None else array.dtype
+            raise ModelLoadError(f"{model.path} answers {kind} {name}, not float32")
 
 
 @dataclass
 class Completed:
     """One completed frame, before any protocol serialises it: depth float32 (H, W) metres,
-    mask bool (H, W), points float32 (N, 3) metres, the region the network saw (everything
-    outside it is 0), the intrinsics used and the summary's counts."""
+    mask bool (H, W), sigma float32 (H, W) metres (the depth's 1-sigma uncertainty, 0 off the
+    mask), points float32 (N, 3) metres of the ``kept`` pixels (bool (H, W)), the region the
+    network saw (everything outside it is 0), the intrinsics used, the summary's counts and
+    the sigma above which points left the cloud (metres; ``None``: no limit)."""
 
     depth: np.ndarray
     mask: np.ndarray
+    sigma: np.ndarray
     points: np.ndarray
+    kept: np.ndarray
     region: Region
     intrinsics: Intrinsics
     returns: int
     outliers_removed: int
+    uncertain_removed: int
+    sigma_limit: float | None
+
+    @functools.cached_property
+    def point_sigma(self) -> np.ndarray:
+        """float32 (N,) metres: each point's sigma, in the order of ``points``."""
+        return self.sigma[self.kept]
 
     @functools.cached_property
     def window(self) -> tuple[int, int, int, int]:
@@ -151,6 +164,7 @@ class Completed:
             foreground_px=int(np.count_nonzero(self.mask)),
             point_count=len(self.points),
             outliers_removed=self.outliers_removed,
+            uncertain_removed=self.uncertain_removed,
         )
 
     def summary(self, model: OnnxModel, timer: PhaseTimer) -> CompletionSummary:
@@ -178,30 +192,51 @@ def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Fram
         raise ApiError(422, "invalid_intrinsics", str(exc)) from None
 
 
+def sigma_limit(
+    sigma: np.ndarray, valid: np.ndarray, max_sigma: float | None, quantile: float | None
+) -> float | None:
+    """The sigma (metres) above which a point leaves the cloud: ``max_sigma`` when given,
+    else, with a ``quantile`` (0..1), that quantile of the ``valid`` pixels' sigma (the
+    frame's own scale: 0.9 leaves the 10 % most uncertain out), else none."""
+    if max_sigma is not None or quantile is None or not valid.any():
+        return max_sigma
+    return float(np.quantile(sigma[valid], quantile))
+
+
 def complete_frame(
     engine: Engine,
     frame: Frame,
     timer: PhaseTimer,
     cloud_phase: str = "encode",
+    sigma_quantile: float | None = None,
 ) -> Completed:
     """Complete a validated frame (queue, inference) and back-project its points (timed as
-    ``cloud_phase``, with the optional outlier removal): what every protocol answers from,
-    and what ``POST /pose`` registers."""
+    ``cloud_phase``): the pixels whose sigma is within ``sigma_limit`` (the frame's
+    ``max_sigma``, else its ``sigma_quantile`` when given), then the optional outlier removal
+    on those. What every protocol answers from, and what ``POST /pose`` registers."""
     height, width = frame.gray.shape
     K = request_intrinsics(engine.model.info.intrinsics, width, height, frame)
     result = engine.complete(frame.gray, frame.sparse, K.fx, timer)
     with timer(cloud_phase):
-        valid = result.mask & (result.depth > 0)
-        kept = statistical_outliers(result.depth, valid, K) if frame.outlier_removal else valid
-        points = back_project(result.depth, kept, K)
+        depth, sigma = result.depth, result.sigma
+        valid = result.mask & (depth > 0)
+        limit = sigma_limit(sigma, valid, frame.max_sigma, sigma_quantile)
+        trusted = valid if limit is None else valid & (sigma <= limit)
+        kept = statistical_outliers(depth, trusted, K) if frame.outlier_removal else trusted
+        points = back_project(depth, kept, K)
+        trusted_count = int(np.count_nonzero(trusted))
     return Completed(
-        depth=result.depth,
+        depth=depth,
         mask=result.mask,
+        sigma=sigma,
         points=points,
+        kept=kept,
         region=result.region,
         intrinsics=K,
         returns=int(np.count_nonzero(frame.sparse)),
-        outliers_removed=int(np.count_nonzero(valid)) - len(points),
+        outliers_removed=trusted_count - len(points),
+        uncertain_removed=int(np.count_nonzero(valid)) - trusted_count,
+        sigma_limit=limit,
     )
 
 
@@ -231,9 +266,7 @@ def answer(
     spool = Spool()
     try:
         with timer("encode"):
-            mask = done.mask.view(np.uint8)
-            frame_summary = done.frame_summary(engine.model)
-            encoded = encode(req.format, done.depth, mask, done.points, frame_summary, spool)
+            encoded = encode(req.format, done, done.frame_summary(engine.model), spool)
         encoded.finish(done.summary(engine.model, timer))
     except BaseException:
         spool.close()

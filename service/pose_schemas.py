@@ -71,6 +71,10 @@ class PoseResponse(BaseModel):
     )
     alternatives: list[PoseAlternative]
     hypotheses: int = Field(description="poses refined to reach this answer")
+    sigma_limit_m: float | None = Field(
+        description="the completed points registered are those of sigma up to this, metres: "
+        "the request's max_sigma, else the frame's 90th percentile of sigma; null: no point"
+    )
     completion: FrameSummary = Field(description="the completed frame the pose comes from")
     timings: PoseTimings
 

@@ -12,8 +12,8 @@ class ResponseFormat(StrEnum):
     """How ``POST /complete`` answers."""
 
     json = "json"  # arrays as base64 of .npy bytes, in a JSON document
-    npz = "npz"  # one zip: depth.npy, mask.npy, points.npy, meta.json
-    ply = "ply"  # the point cloud alone, binary little-endian PLY
+    npz = "npz"  # one zip: depth.npy, mask.npy, points.npy, sigma.npy, meta.json
+    ply = "ply"  # the point cloud alone, binary little-endian PLY: x, y, z, sigma a vertex
 
 
 class ErrorDetail(BaseModel):
@@ -106,6 +106,10 @@ class FrameSummary(BaseModel):
     foreground_px: int = Field(description="pixels in the mask")
     point_count: int = Field(description="points in the cloud")
     outliers_removed: int = Field(description="points dropped by statistical outlier removal")
+    uncertain_removed: int = Field(
+        description="points left out for a sigma above max_sigma (POST /pose: or above the "
+        "frame's own limit)"
+    )
 
 
 class CompletionSummary(FrameSummary):
@@ -120,6 +124,9 @@ class CompletionResponse(CompletionSummary):
     depth: EncodedArray = Field(description="float32 (H, W) metres, 0 outside the mask")
     mask: EncodedArray = Field(description="uint8 (H, W), 1 = spacecraft")
     points: EncodedArray = Field(description="float32 (N, 3) camera frame, metres")
+    sigma: EncodedArray = Field(
+        description="float32 (H, W) metres: the depth's 1-sigma uncertainty, 0 outside the mask"
+    )
 
 
 class Liveness(BaseModel):

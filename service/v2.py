@@ -10,11 +10,12 @@ with the request parameter ``binary_data_output``) follow the JSON header as raw
 
 Inputs: ``gray`` (UINT8 or UINT16, [H, W]) and either ``sparse`` (FP32, [H, W], metres, 0 = no
 return) or ``returns`` (FP32, [N, 3]: row, column, Z metres). Request parameters: ``fx``,
-``fy``, ``cx``, ``cy`` (pixels) and ``outlier_removal``. Outputs: ``depth`` (FP32, [H, W]),
-``mask`` (UINT8, [H, W]) and ``points`` (FP32, [N, 3]). sdcnet's own output parameters ask for
-the compact layouts of ``sdcnet.compact``: ``region`` (depth, mask: only the spacecraft's
-region, the smallest window holding the mask; the answer says where), ``bits`` (mask: 8
-pixels a byte) and ``fp16`` (depth: float16 residuals above ``depth_offset``).
+``fy``, ``cx``, ``cy`` (pixels), ``outlier_removal`` and ``max_sigma`` (metres). Outputs:
+``depth`` (FP32, [H, W]), ``mask`` (UINT8, [H, W]), ``points`` (FP32, [N, 3]) and ``sigma``
+(FP32, [H, W], metres). sdcnet's own output parameters ask for the compact layouts of
+``sdcnet.compact``: ``region`` (depth, mask, sigma: only the spacecraft's region, the
+smallest window holding the mask; the answer says where), ``bits`` (mask: 8 pixels a byte)
+and ``fp16`` (depth: float16 residuals above ``depth_offset``).
 
 The JSON header is validated by the pydantic models below (their JSON schema is the route's
 OpenAPI request body); tensors are checked for datatype, shape and byte counts before any array
@@ -61,7 +62,12 @@ INPUTS = {
     "returns": (("FP32",), (-1, 3)),
 }
 #: output name -> (datatype, shape) in the full-frame layout
-OUTPUTS = {"depth": ("FP32", (-1, -1)), "mask": ("UINT8", (-1, -1)), "points": ("FP32", (-1, 3))}
+OUTPUTS = {
+    "depth": ("FP32", (-1, -1)),
+    "mask": ("UINT8", (-1, -1)),
+    "points": ("FP32", (-1, 3)),
+    "sigma": ("FP32", (-1, -1)),
+}
 
 
 # -- the JSON header (request) ---------------------------------------------------------
@@ -102,6 +108,11 @@ class InferParameters(_Strict):
     outlier_removal: bool = Field(
         False, description="statistical outlier removal on the point cloud (paper Fig. 7)"
     )
+    max_sigma: Annotated[float, Field(json_schema_extra={"exclusiveMinimum": 0})] | None = Field(
+        None,
+        description="metres: points whose depth's 1-sigma uncertainty is above it are left "
+        "out of the point cloud; depth, mask and sigma stay whole",
+    )
     binary_data_output: bool = Field(
         False, description="every output as binary data unless its own binary_data says no"
     )
@@ -130,10 +141,13 @@ class BinaryOutputParameters(_Strict):
     )
 
 
-class DepthOutputParameters(BinaryOutputParameters):
+class RegionOutputParameters(BinaryOutputParameters):
     region: bool = Field(
         False, description="only the smallest window holding the mask, 0 outside (sdcnet)"
     )
+
+
+class DepthOutputParameters(RegionOutputParameters):
     fp16: bool = Field(
         False,
         description="FP16 residuals above the output parameter depth_offset (metres), -1 "
@@ -141,10 +155,7 @@ class DepthOutputParameters(BinaryOutputParameters):
     )
 
 
-class MaskOutputParameters(BinaryOutputParameters):
-    region: bool = Field(
-        False, description="only the smallest window holding the mask, 0 outside (sdcnet)"
-    )
+class MaskOutputParameters(RegionOutputParameters):
     bits: bool = Field(False, description="8 pixels a byte, numpy.packbits order (sdcnet)")
 
 
@@ -163,7 +174,13 @@ class PointsOutput(_Strict):
     parameters: BinaryOutputParameters | None = None
 
 
-RequestOutput = Annotated[DepthOutput | MaskOutput | PointsOutput, Field(discriminator="name")]
+class SigmaOutput(_Strict):
+    name: Literal["sigma"]
+    parameters: RegionOutputParameters | None = None
+
+
+AnyOutput = DepthOutput | MaskOutput | PointsOutput | SigmaOutput
+RequestOutput = Annotated[AnyOutput, Field(discriminator="name")]
 
 
 class InferenceRequest(_Strict):
@@ -173,7 +190,7 @@ class InferenceRequest(_Strict):
     parameters: InferParameters | None = None
     inputs: list[RequestInput] = Field(description="gray, and sparse or returns")
     outputs: list[RequestOutput] | None = Field(
-        None, description="depth, mask, points, each at most once (default: all three)"
+        None, description="depth, mask, points, sigma, each at most once (default: all four)"
     )
 
 
@@ -378,6 +395,7 @@ def frame_of_request(parsed: ParsedRequest, binary: memoryview, limits: InputLim
         cx=parameters.cx,
         cy=parameters.cy,
         outlier_removal=parameters.outlier_removal,
+        max_sigma=parameters.max_sigma,
     )
 
 
@@ -393,18 +411,23 @@ class Tensor:
     parameters: dict[str, Scalar]
 
 
-def output_tensor(output: DepthOutput | MaskOutput | PointsOutput, done: Completed) -> Tensor:
+def output_tensor(output: AnyOutput, done: Completed) -> Tensor:
     """``output`` of a completed frame, in the layout its parameters ask for."""
     if isinstance(output, PointsOutput):
         return Tensor(done.points, "FP32", {})
     params = output.parameters
-    array = done.depth if isinstance(output, DepthOutput) else done.mask.astype(np.uint8)
+    if isinstance(output, MaskOutput):
+        array = done.mask.view(np.uint8)
+    else:
+        array = done.depth if isinstance(output, DepthOutput) else done.sigma
     extra: dict[str, Scalar] = {}
     if params is not None and params.region:
         y0, x0, height, width = done.window
         array = crop(array, y0, x0, height, width)
         extra = {"region_y0": y0, "region_x0": x0, "region_height": height}
         extra["region_width"] = width
+    if isinstance(output, SigmaOutput):
+        return Tensor(array, "FP32", extra)
     if isinstance(output, DepthOutput):
         if params is not None and params.fp16:
             array, offset = fp16_residuals(array)
@@ -421,16 +444,23 @@ def summary_parameters(summary: CompletionSummary) -> dict[str, Scalar]:
     return {**flat, **summary.intrinsics.model_dump(), **summary.timings.model_dump()}
 
 
-def requested_outputs(request: InferenceRequest) -> list[DepthOutput | MaskOutput | PointsOutput]:
-    """The outputs asked for, each once (default: depth, mask and points)."""
+def requested_outputs(request: InferenceRequest) -> list[AnyOutput]:
+    """The outputs asked for, each once (default: depth, mask, points and sigma)."""
     if request.outputs is None:
-        return [DepthOutput(name="depth"), MaskOutput(name="mask"), PointsOutput(name="points")]
+        return [
+            DepthOutput(name="depth"),
+            MaskOutput(name="mask"),
+            PointsOutput(name="points"),
+            SigmaOutput(name="sigma"),
+        ]
     names = [o.name for o in request.outputs]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise _bad(f"output {', '.join(repeated)} is asked for more than once")
     if not names:
-        raise _bad("outputs is empty: ask for depth, mask or points, or leave it out for all")
+        raise _bad(
+            "outputs is empty: ask for depth, mask, points or sigma, or leave it out for all"
+        )
     return list(request.outputs)
 
 
@@ -448,9 +478,7 @@ class Output:
     binary: bool
 
 
-def encode_outputs(
-    outputs: list[DepthOutput | MaskOutput | PointsOutput], done: Completed, binary_default: bool
-) -> list[Output]:
+def encode_outputs(outputs: list[AnyOutput], done: Completed, binary_default: bool) -> list[Output]:
     """The outputs in the layouts asked for, and how each is sent."""
     encoded = []
     for output in outputs:

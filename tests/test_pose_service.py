@@ -11,6 +11,8 @@ subprocess.
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 import subprocess
 import sys
@@ -33,6 +35,7 @@ from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.rigid import Pose, axis_angle, parse_pose, pose_errors
 from sdcnet.service.app import create_app
+from sdcnet.service.pose import POSE_SIGMA_QUANTILE
 from sdcnet.service.settings import Settings
 
 LONGEST_M = 9.0
@@ -117,6 +120,33 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     assert post(client, sample, target="probe", init=json.dumps(quaternion)).json()["tracked"]
 
 
+def test_the_registration_gets_the_points_whose_sigma_it_can_trust(client, frames):
+    """The completed points registered are those of sigma up to the frame's 90th percentile,
+    or up to max_sigma when the request gives it: counted against POST /complete's sigma of
+    the same frame."""
+    sample, truth = frames[0]
+    whole = client.post("/complete", files=files_of(sample)).json()
+    depth, mask, sigma = (
+        np.load(io.BytesIO(base64.b64decode(whole[k]["npy_base64"])), allow_pickle=False)
+        for k in ("depth", "mask", "sigma")
+    )
+    valid = mask.astype(bool) & (depth > 0)
+    limit = float(np.quantile(sigma[valid], POSE_SIGMA_QUANTILE))
+    answer = post(client, sample, target="probe").json()
+    max_sigma = float(np.quantile(sigma[valid], 0.5))
+    given = post(
+        client, sample, target="probe", init=json.dumps(answer["pose"]), max_sigma=repr(max_sigma)
+    ).json()
+    for registered, cut in ((answer, limit), (given, max_sigma)):
+        assert registered["sigma_limit_m"] == cut
+        completion = registered["completion"]
+        assert completion["point_count"] == np.count_nonzero(valid & (sigma <= cut))
+        uncertain = np.count_nonzero(valid & (sigma > cut))
+        assert completion["uncertain_removed"] == uncertain > 0
+        rotation_deg, translation_m = pose_errors(parse_pose(registered["pose"]), truth)
+        assert rotation_deg < ROTATION_DEG and translation_m < TRANSLATION_M
+
+
 def test_the_returns_as_a_list_give_the_pose_of_the_dense_map(client, frames):
     sample, _ = frames[1]
     dense = post(client, sample, target="probe").json()
@@ -157,6 +187,7 @@ def test_the_model_lists_the_targets_and_their_surface_samples_draw_them(client)
             "'t' holds NaN or infinite values",
         ),
         ({"target": "probe", "cx": "1e308"}, "invalid_intrinsics", "principal point"),
+        ({"target": "probe", "max_sigma": "-1"}, "invalid_max_sigma", "positive finite number"),
         ({}, "invalid_request", "target"),
         ({"target": "probe", "targett": "x"}, "invalid_request", "unknown form field"),
     ],
@@ -211,6 +242,12 @@ def test_sdc_client_pose_prints_the_pose_and_draws_the_target(url, frames, tmp_p
     printed = capsys.readouterr().out
     assert "pose of probe" in printed and "from scratch" in printed
     answer = json.loads((tmp_path / "out" / "pose.json").read_text())
+    completion = answer["completion"]
+    assert (
+        f"cloud     {completion['point_count']:,} points registered (depth sigma <= "
+        f"{100 * answer['sigma_limit_m']:.1f} cm; {completion['uncertain_removed']:,} more "
+        "uncertain left out)"
+    ) in printed
     assert pose_errors(parse_pose(answer["pose"]), truth)[0] < ROTATION_DEG
     preview = cv2.imread(str(tmp_path / "out" / "preview.png"))
     assert preview.shape[0] == 320 and preview.shape[1] >= 2 * 320
@@ -237,13 +274,14 @@ def test_the_python_api_tracks_and_fetches_the_targets_samples(url, frames):
     with Client(url) as client:
         first = client.pose(sample.gray, sample.sparse, "probe")
         listed = client.pose(sample.gray, None, "probe", returns=returns_from_dense(sample.sparse))
-        again = client.pose(sample.gray, sample.sparse, "probe", init=first.pose)
+        again = client.pose(sample.gray, sample.sparse, "probe", init=first.pose, max_sigma=0.09)
         points = client.target_points("probe")
         with pytest.raises(ServiceError, match="unknown_target"):
             client.target_points("nope")
         with pytest.raises(ServiceError, match="unknown_target"):
             client.pose(sample.gray, sample.sparse, "no such/target")
     assert not first.answer["tracked"] and again.answer["tracked"]
+    assert again.answer["sigma_limit_m"] == 0.09 != first.answer["sigma_limit_m"]
     assert pose_errors(first.pose, truth)[0] < ROTATION_DEG
     assert listed.answer["pose"] == first.answer["pose"]  # what the client sends is the frame
     assert pose_errors(again.pose, truth)[0] < ROTATION_DEG and first.latency_s > 0

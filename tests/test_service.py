@@ -156,6 +156,7 @@ def test_model_metadata(client):
         "depth": ("FP32", [-1, -1]),
         "mask": ("UINT8", [-1, -1]),
         "points": ("FP32", [-1, 3]),
+        "sigma": ("FP32", [-1, -1]),
     }
     assert "metres" in meta["inputs"][1]["description"]
     assert meta["intrinsics"]["fx"] == pytest.approx(7939.2, abs=0.1)
@@ -175,7 +176,7 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     response = post(client, frame_files())
     assert response.status_code == 200, response.text
     body = response.json()
-    depth, mask, points = (decoded(body[k]) for k in ("depth", "mask", "points"))
+    depth, mask, points, sigma = (decoded(body[k]) for k in ("depth", "mask", "points", "sigma"))
 
     direct_model = OnnxModel(model_path, provider="cpu", threads=1)
     K = direct_model.info.intrinsics.scaled(256, 256)  # the paper's camera at 256 px
@@ -186,6 +187,11 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     np.testing.assert_array_equal(mask, direct.mask.astype(np.uint8))
     valid = direct.mask & (direct.depth > 0)
     np.testing.assert_array_equal(points, back_project(direct.depth, valid, K))
+    # the tiny model's sigma is a tenth of the gray image (metres), 0 off the mask
+    assert sigma.dtype == np.float32 and np.isfinite(sigma).all()
+    np.testing.assert_array_equal(sigma, direct.sigma)
+    assert not sigma[~direct.mask].any() and sigma[direct.mask].min() > 0
+    assert body["uncertain_removed"] == 0
     # the tiny model calls bright pixels spacecraft: the drawn craft, not the dim stars (its
     # outline within resampling to the working grid and back)
     differ = mask.astype(bool) != (s.gray > 127)
@@ -220,14 +226,16 @@ def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
     assert npz.status_code == ply.status_code == 200
     assert 'filename="sdcnet.npz"' in npz.headers["content-disposition"]
     names = zipfile.ZipFile(io.BytesIO(npz.content)).namelist()  # any zip reader opens it
-    assert names == ["depth.npy", "mask.npy", "points.npy", "meta.json"]
+    assert names == ["depth.npy", "mask.npy", "points.npy", "sigma.npy", "meta.json"]
 
     with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
-        assert sorted(archive.files) == ["depth", "mask", "meta.json", "points"]
+        assert sorted(archive.files) == ["depth", "mask", "meta.json", "points", "sigma"]
         depth, mask, points = archive["depth"], archive["mask"], archive["points"]
-        meta = json.loads(archive["meta.json"])
+        sigma, meta = archive["sigma"], json.loads(archive["meta.json"])
     np.testing.assert_array_equal(depth, decoded(as_json["depth"]))
     np.testing.assert_array_equal(points, decoded(as_json["points"]))
+    np.testing.assert_array_equal(sigma, decoded(as_json["sigma"]))
+    assert sigma.dtype == np.float32 and np.isfinite(sigma).all() and sigma.max() > 0
     assert meta["intrinsics"] == {"fx": 2000.0, "fy": 2020.0, "cx": 100.5, "cy": 130.0}
 
     # the points are the kept pixels, back-projected with the intrinsics given
@@ -237,9 +245,43 @@ def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
     np.testing.assert_array_equal(points, back_project(depth, kept, K))
     assert meta["outliers_removed"] == valid.sum() - len(points)
 
-    cloud, comments = read_ply(ply.content)
-    np.testing.assert_array_equal(cloud, points)
-    assert f"model_version {TINY_VERSION}" in comments
+    cloud = read_ply(ply.content)
+    np.testing.assert_array_equal(cloud.points, points)
+    np.testing.assert_array_equal(cloud.properties["sigma"], sigma[kept])  # each point's own
+    assert f"model_version {TINY_VERSION}" in cloud.comments
+
+
+def test_max_sigma_leaves_exactly_the_points_above_it_out_of_every_answer(client):
+    """The points are those of the pixels whose sigma is at most max_sigma (then the outlier
+    removal, on those); depth, mask and sigma stay whole; the summary counts the rest."""
+    whole = post(client, frame_files()).json()
+    depth, mask, sigma = (decoded(whole[k]) for k in ("depth", "mask", "sigma"))
+    valid = mask.astype(bool) & (depth > 0)
+    max_sigma = float(np.median(sigma[valid]))  # half the points above it
+    trusted = valid & (sigma <= max_sigma)
+    K = Intrinsics(**whole["intrinsics"], width=256, height=256)
+    fields = {"max_sigma": repr(max_sigma)}
+    as_json = post(client, frame_files(), fields).json()
+    for name, array in (("depth", depth), ("mask", mask), ("sigma", sigma)):
+        np.testing.assert_array_equal(decoded(as_json[name]), array, err_msg=name)
+    np.testing.assert_array_equal(decoded(as_json["points"]), back_project(depth, trusted, K))
+    assert as_json["uncertain_removed"] == np.count_nonzero(valid & (sigma > max_sigma)) > 100
+    assert as_json["point_count"] == np.count_nonzero(trusted)
+
+    npz = post(client, frame_files(), {**fields, "outlier_removal": "true"}, format="npz")
+    with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
+        kept = statistical_outliers(depth, trusted, K)
+        np.testing.assert_array_equal(archive["points"], back_project(depth, kept, K))
+        np.testing.assert_array_equal(archive["sigma"], sigma)
+        meta = json.loads(archive["meta.json"])
+    assert meta["uncertain_removed"] == as_json["uncertain_removed"]
+    assert meta["outliers_removed"] == np.count_nonzero(trusted) - np.count_nonzero(kept) > 0
+
+    cloud = read_ply(post(client, frame_files(), fields, format="ply").content)
+    np.testing.assert_array_equal(cloud.points, decoded(as_json["points"]))
+    np.testing.assert_array_equal(cloud.properties["sigma"], sigma[trusted])
+    assert cloud.properties["sigma"].max() <= max_sigma
+    assert f"uncertain_removed {as_json['uncertain_removed']}" in cloud.comments
 
 
 @pytest.mark.parametrize(
@@ -308,6 +350,10 @@ def bad_request(case: str) -> tuple[dict, dict | None, dict]:
         "scale_with_npy": {"depth_scale": "0.01"},
         "negative_fx": {"fx": "-5"},
         "nan_cx": {"cx": "nan"},
+        "zero_max_sigma": {"max_sigma": "0"},
+        "negative_max_sigma": {"max_sigma": "-0.05"},
+        "infinite_max_sigma": {"max_sigma": "inf"},
+        "text_max_sigma": {"max_sigma": "5 cm"},
     }.get(case)
     query = {"unknown_format": {"format": "xml"}}.get(case, {})
     return files, fields, query
@@ -341,6 +387,10 @@ BAD_INPUTS = {
     "scale_with_npy": (422, "invalid_request"),
     "negative_fx": (422, "invalid_intrinsics"),
     "nan_cx": (422, "invalid_request"),
+    "zero_max_sigma": (422, "invalid_max_sigma"),
+    "negative_max_sigma": (422, "invalid_max_sigma"),
+    "infinite_max_sigma": (422, "invalid_request"),
+    "text_max_sigma": (422, "invalid_request"),
 }
 
 

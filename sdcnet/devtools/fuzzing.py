@@ -151,11 +151,12 @@ def _fitting_intrinsics(fields: dict) -> dict:
 
 def _pose_fields(fields: dict) -> dict:
     """A valid ``POST /pose`` case's other fields: the known target, a pose as ``init`` (when
-    one is sent), and none of the intrinsics or ``depth_scale``. The schema cannot say that a
-    focal length of 1e-300 px, or a depth scale of 1e-6 m per unit on depths of 100 m, turn
-    the frame into a cloud light-years wide or millimetres small, which ``/pose`` refuses
-    (422) where ``/complete`` completes it."""
-    dropped = ("fx", "fy", "cx", "cy", "depth_scale")
+    one is sent), and none of the intrinsics, ``depth_scale`` or ``max_sigma``. The schema
+    cannot say that a focal length of 1e-300 px, or a depth scale of 1e-6 m per unit on depths
+    of 100 m, turn the frame into a cloud light-years wide or millimetres small, nor that a
+    max_sigma of 1e-300 m leaves no point in it, which ``/pose`` refuses (422) where
+    ``/complete`` completes it."""
+    dropped = ("fx", "fy", "cx", "cy", "depth_scale", "max_sigma")
     kept = {k: v for k, v in fields.items() if k not in dropped}
     kept["target"] = FUZZ_TARGET
     if "init" in kept:

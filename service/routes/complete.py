@@ -91,6 +91,13 @@ PrincipalPoint = optional_number(f"pixels, within half an image of the image; {_
 #: Metres per unit of a 16-bit PNG sparse map, bounded so that every depth stays finite and
 #: non-zero in float32 (65535 units x 1000 m; 1 unit x 1 micrometre).
 DepthScale = optional_number("metres per unit of a 16-bit PNG sparse", ge=1e-6, le=1e3)
+#: Checked by ``sdcnet.service.decode.check_max_sigma`` (422 invalid_max_sigma), alike on
+#: every route.
+MaxSigma = optional_number(
+    "metres: points whose depth's 1-sigma uncertainty is above it are left out of the point "
+    "cloud (counted as uncertain_removed); depth, mask and sigma stay whole",
+    documented={"gt": 0},
+)
 GrayFile = Annotated[
     UploadFile,
     File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
@@ -119,6 +126,7 @@ async def frame_form(
     outlier_removal: Annotated[
         bool, Form(description="statistical outlier removal on the point cloud (Fig. 7)")
     ] = False,
+    max_sigma: MaxSigma = None,
 ) -> CompletionRequest:
     """FastAPI dependency: one frame's form fields (``POST /complete`` and ``POST /pose``),
     the uploaded files read, as ``decode_form`` takes them."""
@@ -132,6 +140,7 @@ async def frame_form(
         cx=cx,
         cy=cy,
         outlier_removal=outlier_removal,
+        max_sigma=max_sigma,
     )
 
 
@@ -144,7 +153,8 @@ FrameForm = Annotated[CompletionRequest, Depends(frame_form)]
     responses={
         200: {
             "description": "format=json: this document; format=npz: a zip of depth.npy, "
-            "mask.npy, points.npy and meta.json; format=ply: the point cloud as binary PLY",
+            "mask.npy, points.npy, sigma.npy and meta.json; format=ply: the point cloud as "
+            "binary PLY, each vertex x, y, z and sigma (float32, metres)",
             "content": {"application/octet-stream": {}},
             "headers": SERVER_TIMING_HEADER,
         },
@@ -162,7 +172,9 @@ async def complete(
         ResponseFormat, Query(alias="format", description="json, npz or ply")
     ] = ResponseFormat.json,
 ) -> SpooledResponse:
-    """Complete one frame: dense depth (metres, 0 off the mask), mask and point cloud.
+    """Complete one frame: dense depth (metres, 0 off the mask), its 1-sigma uncertainty
+    `sigma` (metres, 0 off the mask), mask and point cloud (without the points whose sigma is
+    above `max_sigma`, when given).
 
     The LIDAR returns come as a dense map (`sparse`) or as a list (`returns`: a few hundred
     returns in a few kilobytes instead of a 4 MiB map for a 1024 x 1024 frame; the answers

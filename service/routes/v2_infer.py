@@ -66,9 +66,11 @@ async def infer(
     """Complete one frame. Inputs: `gray` (UINT8 or UINT16, [H, W]) and `sparse` (FP32,
     [H, W], metres, 0 = no return) or `returns` (FP32, [N, 3]: row, column, Z metres).
     Parameters: `fx`, `fy`, `cx`, `cy` (pixels; default: the camera's, else the model's),
-    `outlier_removal`. Outputs: `depth` (FP32, [H, W], metres, 0 off the mask), `mask` (UINT8,
-    [H, W]), `points` (FP32, [N, 3], camera frame, metres); the summary of `POST /complete` is
-    in the answer's parameters. Errors: `{"error": "..."}`, the code in `Sdcnet-Error-Code`.
+    `outlier_removal`, `max_sigma` (metres: points of a larger sigma leave the cloud). Outputs:
+    `depth` (FP32, [H, W], metres, 0 off the mask), `mask` (UINT8, [H, W]), `points` (FP32,
+    [N, 3], camera frame, metres), `sigma` (FP32, [H, W], the depth's 1-sigma uncertainty,
+    metres, 0 off the mask); the summary of `POST /complete` is in the answer's parameters.
+    Errors: `{"error": "..."}`, the code in `Sdcnet-Error-Code`.
     """
     encoding = request.headers.get("content-encoding", "identity").lower()
     if encoding != "identity":
