@@ -73,21 +73,29 @@ docker-check: $(STAMP)
 	bash docker/check.sh $(DOCKER_CHECK_ARGS)
 
 ## model: regenerate the data, train, evaluate and export the shipped model with its card (about
-## 3 h of training on 2 idle cores, 1 h of data; PRESET=paper on a GPU). The third design
+## 2 h of training on 2 idle cores, 1 h of data; PRESET=paper on a GPU). The third design
 ## (scale-free inputs, a fixed working-pixel budget, pre-fills that follow the returns' spacing,
 ## an uncertainty head) is trained on the `mixed` world, warm-started from the second shipped
-## model (git $(PREVIOUS), whose card tells its own five runs on the paper's world).
+## model (git $(PREVIOUS), whose card tells its own five runs on the paper's world), in the three
+## steps the shipped model took: FSNet one epoch; FSNet three more and stage 2 three (the shipped
+## run had a six-epoch schedule and was stopped after three; its best epoch was the first); FSNet
+## fine-tuned three more epochs on the trained FDCNet. Then its sigma is calibrated on val.
 .PHONY: model
 PRESET ?= cpu
 PREVIOUS ?= e6a386e
 RUN ?= runs/v3
+FIT := $(VENV)/bin/sdc-train fit --data data/mixed --preset $(PRESET) --iou-loss 1 --workers 2 \
+	--val-samples 40
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
-	$(VENV)/bin/sdc-train fit --data data/mixed --out $(RUN) --preset $(PRESET) \
-		--warm-start runs/previous/sdcnet.pt --fsnet-epochs 8 --epochs 12 --lr 1e-3 --iou-loss 1 \
-		--seed 0 --workers 2
-	$(VENV)/bin/sdc-train ship --checkpoint $(RUN)/best.pt --out models/sdcnet.pt
+	$(FIT) --out $(RUN) --warm-start runs/previous/sdcnet.pt --fsnet-epochs 1 --epochs 0 --lr 1e-3 \
+		--seed 0
+	$(FIT) --out $(RUN)b --init-weights $(RUN)/last.pt --fsnet-epochs 3 --epochs 3 --lr 7e-4 --seed 1
+	$(FIT) --out $(RUN)c --init-weights $(RUN)b/best.pt --fsnet-epochs 3 --epochs 0 --lr 5e-4 --seed 2
+	$(VENV)/bin/sdc-train ship --checkpoint $(RUN)c/best_stage1.pt --out $(RUN)c/shipped.pt
+	$(VENV)/bin/sdc-train calibrate --checkpoint $(RUN)c/shipped.pt --data data/mixed --split val \
+		--out models/sdcnet.pt
 	$(MAKE) reports
 
 ## reports: evaluate the shipped checkpoint beside the previous model (git $(PREVIOUS), run by its
@@ -120,7 +128,7 @@ reports: $(STAMP)
 	$(VENV)/bin/sdc-train real --onnx models/sdcnet.onnx --floor --out docs/real \
 		--answers "previous model=$(PREVIOUS_ANSWERS)/real"
 	for c in $(CONDITIONS); do $(VENV)/bin/sdc-data generate --out data/robustness/$$c --models 126 \
-		--views 3 --seed 0 --world $$c --meshes $(MESHES) --only-splits test real || exit 1; done
+		--views 2 --seed 0 --world $$c --meshes $(MESHES) --only-splits test real || exit 1; done
 	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/robustness \
 		--out $(PREVIOUS_ANSWERS)/robustness
 	$(VENV)/bin/sdc-train robustness --onnx models/sdcnet.onnx --out docs/robustness \
@@ -141,26 +149,26 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.service_latency --requests 60
 	$(PY) -m benchmarks.load --requests 2000 --concurrency 32
 
-## ablation: the paper's Tables 4 and 5 on the mixed world with the cpu recipe (needs $(RUN) from
-## `make model`). Table 5: every fusion variant trains stage 2 on $(RUN)'s frozen FSNet (the
-## baseline has none), evaluated beside $(RUN)'s own SDCNet. Table 4: FSNet on gray or sparse
-## alone, stage 1 only, against $(RUN)'s stage 1 on both.
+## ablation: the paper's Tables 4 and 5 on the mixed world with the cpu recipe (needs $(RUN)c from
+## `make model`). Table 5: every fusion variant trains stage 2 on $(RUN)c's frozen FSNet (the
+## baseline has none), evaluated beside $(RUN)c's own SDCNet. Table 4: FSNet on gray or sparse
+## alone, stage 1 only, against $(RUN)c's stage 1 on both.
 .PHONY: ablation
 FUSIONS := fsnet fsnet+cca fsnet+sa
 ablation: $(STAMP)
 	for v in $(FUSIONS); do $(VENV)/bin/sdc-train fit --data data/mixed --out runs/ablation-$$v \
-		--preset $(PRESET) --variant $$v --init-segmentation $(RUN)/best_stage1.pt || exit 1; done
+		--preset $(PRESET) --variant $$v --init-segmentation $(RUN)c/best_stage1.pt || exit 1; done
 	$(VENV)/bin/sdc-train fit --data data/mixed --out runs/ablation-baseline --preset $(PRESET) \
 		--variant baseline
 	for i in gray sparse; do $(VENV)/bin/sdc-train fit --data data/mixed --out runs/ablation-fsnet-$$i \
 		--preset $(PRESET) --fsnet-inputs $$i --epochs 0 || exit 1; done
 	$(VENV)/bin/sdc-train evaluate --data data/paper --split test --limit 288 --out models/eval_ablation.json \
-		--checkpoint runs/ablation-baseline/best.pt $(foreach v,$(FUSIONS),runs/ablation-$(v)/best.pt) $(RUN)/best.pt \
+		--checkpoint runs/ablation-baseline/best.pt $(foreach v,$(FUSIONS),runs/ablation-$(v)/best.pt) $(RUN)c/shipped.pt \
 		--names "(a) baseline: guided conv., no FSNet" "(b) + FSNet" "(c) + FSNet + CCA" "(d) + FSNet + SA" "(e) + FSNet + CCA + SA = SDCNet" \
 		--title "Table 5 ablation, test split: each component added to the GuideNet-style baseline (cpu recipe, one seed; every fourth test frame)"
 	$(VENV)/bin/sdc-train evaluate --data data/paper --split test --segmentation-only \
 		--out models/eval_fsnet_inputs.json \
-		--checkpoint runs/ablation-fsnet-gray/best_stage1.pt runs/ablation-fsnet-sparse/best_stage1.pt $(RUN)/best_stage1.pt \
+		--checkpoint runs/ablation-fsnet-gray/best_stage1.pt runs/ablation-fsnet-sparse/best_stage1.pt $(RUN)c/best_stage1.pt \
 		--names "FSNet on gray" "FSNet on sparse depth" "FSNet on both" \
 		--title "Table 4 ablation, test split: FSNet's inputs (8 epochs of stage 1 each, mask metrics only)"
 	$(MAKE) card
