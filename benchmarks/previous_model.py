@@ -20,6 +20,7 @@ import json
 import os
 import subprocess
 import sys
+import sysconfig
 import tarfile
 import tempfile
 from pathlib import Path
@@ -90,14 +91,21 @@ def run(site: Path, data: Path, ids: list[str], out: Path, threads: int) -> None
     if not todo:
         return
     job = {
-        "model": str(site / "sdcnet" / "models" / "sdcnet.onnx"),
-        "data": str(data),
+        "model": str((site / "sdcnet" / "models" / "sdcnet.onnx").resolve()),
+        "data": str(data.resolve()),
         "ids": todo,
-        "out": str(out),
+        "out": str(out.resolve()),
         "threads": threads,
     }
-    env = {**os.environ, "PYTHONPATH": str(site)}
-    subprocess.run([sys.executable, "-c", RUNNER, json.dumps(job)], env=env, check=True)
+    # -S: no site module, so the editable install of this checkout (a meta-path finder that a
+    # .pth file registers, ahead of PYTHONPATH) cannot shadow the previous version's sdcnet; the
+    # third-party packages come from this environment's site-packages, named explicitly. Run
+    # from the install folder: this checkout's own sdcnet/ must not be the working directory.
+    packages = sysconfig.get_paths()["purelib"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site.resolve()), packages])}
+    subprocess.run(
+        [sys.executable, "-S", "-c", RUNNER, json.dumps(job)], env=env, cwd=site, check=True
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
