@@ -74,6 +74,7 @@ def pose_summary(answer: PoseAnswer, target: str, url: str, written: list[Path])
         + (f", sigma {sigma:.2f} deg" if sigma is not None else ""),
         f"  cloud     {a['completion']['point_count']:,} points registered ({limit}; "
         f"{a['completion']['uncertain_removed']:,} more uncertain left out)",
+        "  verdict   " + a["verdict"] + (f" ({', '.join(a['reasons'])})" if a["reasons"] else ""),
         "  ambiguous "
         + (f"yes: {len(a['alternatives'])} alternatives" if a["ambiguous"] else "no"),
         f"  latency   {answer.latency_s * 1e3:.1f} ms round trip; server inference "
