@@ -33,10 +33,11 @@ From scratch (no initial pose):
 With an initial pose (tracking), steps 1-3 become one GICP refinement from it, then step 4
 on it alone (its symmetric twins scored, not refined); if the refinement leaves the target
 explaining the cloud poorly, the global search runs after all, and the init's refined pose
-stays the answer unless another is more consistent by ``leave_init_margin`` (then fits the
-returns clearly better): a tracker is not moved to a symmetric twin that fits as well. An
-answer outside the init's basin (``init_basin_deg``, ``init_basin_of_longest``) is not
-``tracked``.
+stays the answer unless another is more consistent by ``leave_init_margin`` and fits well
+(``reliable_min_consistency``), then unless another fits the returns clearly better: a
+tracker is not moved to a symmetric twin that fits as well, nor to a pose that fits poorly
+too. An answer outside the init's basin (``init_basin_deg``, ``init_basin_of_longest``) is
+not ``tracked``.
 
 Every answer carries a verdict (``judge``): "reliable" (use it as it is), "ambiguous" (a
 plausible pose, but another competes: a symmetric twin, a close runner-up, the track's init)
@@ -825,12 +826,16 @@ def _choose_searched(
 ) -> _Choice:
     """Among the hypotheses as consistent as the best (within ``ambiguity_margin``): the
     most consistent (or the ``prior``, the init's refined pose, unless the best is more
-    consistent by ``leave_init_margin``), unless another fits the returns clearly better
-    once refined on them (so near-symmetric poses do not flip at random); the alternatives
-    are those whose returns fit about as well (or, without returns, all of them)."""
+    consistent by ``leave_init_margin`` and fits well: ``reliable_min_consistency``), unless
+    another fits the returns clearly better once refined on them (so near-symmetric poses do
+    not flip at random); the alternatives are those whose returns fit about as well (or,
+    without returns, all of them)."""
     config = model.config
     top = hypotheses[0].consistency
-    if prior is not None and prior.consistency >= top - config.leave_init_margin:
+    if prior is not None and (
+        prior.consistency >= top - config.leave_init_margin
+        or top < config.reliable_min_consistency
+    ):
         top = prior.consistency
         hypotheses = [prior, *(h for h in hypotheses if h is not prior)]
     candidates = _distinct(

@@ -106,6 +106,7 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     rotation_deg, translation_m = pose_errors(parse_pose(answer["pose"]), truth)
     assert rotation_deg < ROTATION_DEG and translation_m < TRANSLATION_M
     assert not answer["tracked"] and answer["hypotheses"] > 1 and not answer["ambiguous"]
+    assert answer["verdict"] == "reliable" and answer["reasons"] == []
     assert answer["completion"]["returns"] == sample.meta["returns"]
     assert answer["completion"]["point_count"] > 1000
     assert 0.5 < answer["fitness"] <= 1 and answer["returns_rmse_m"] < 0.01
@@ -115,6 +116,13 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     again = post(client, sample, target="probe", init=json.dumps(answer["pose"])).json()
     assert again["tracked"] and again["hypotheses"] == 1 and again["timings"]["search_ms"] == 0
     assert pose_errors(parse_pose(again["pose"]), truth)[0] < ROTATION_DEG
+    assert again["verdict"] == "reliable"
+    # From a pose the frame contradicts (turned a quarter, metres away): the answer leaves it.
+    R = axis_angle([0, 1, 0], np.pi / 2) @ truth.R
+    lost = json.dumps({"R": R.tolist(), "t": (truth.t + [3.0, 0, 0]).tolist()})
+    left = post(client, sample, target="probe", init=lost).json()
+    assert not left["tracked"] and "left_init" in left["reasons"]
+    assert left["verdict"] == "ambiguous"
     # A quaternion init works as well as a matrix.
     quaternion = {"quaternion_wxyz": answer["pose"]["quaternion_wxyz"], "t": answer["pose"]["t"]}
     assert post(client, sample, target="probe", init=json.dumps(quaternion)).json()["tracked"]
@@ -256,7 +264,8 @@ def test_sdc_client_pose_prints_the_pose_and_draws_the_target(url, frames, tmp_p
     assert np.count_nonzero(np.ptp(drawn.astype(int), axis=2) > 30) > 200
     # Tracking from the written answer.
     assert client_main([*argv, "--init", str(tmp_path / "out" / "pose.json")]) == 0
-    assert "tracked" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "tracked" in printed and f"verdict   {answer['verdict']}" in printed
     assert client_main([*argv[:4], "nope", *argv[5:]]) == 3
     assert "unknown_target" in capsys.readouterr().err
     assert client_main([*argv, "--init", "{not json"]) == 2
@@ -298,6 +307,7 @@ def test_a_symmetric_target_is_answered_ambiguous_with_its_alternatives(tmp_path
     with TestClient(create_app(settings)) as http:
         answer = post(http, sample, target="box").json()
     assert answer["ambiguous"] and answer["alternatives"]
+    assert answer["verdict"] == "ambiguous" and "symmetric_twins" in answer["reasons"]
     # Twins: other rotations of the box in the same place, the truth among them.
     best = parse_pose(answer["pose"])
     twins = [parse_pose(a["pose"]) for a in answer["alternatives"]]
