@@ -93,10 +93,10 @@ class RegistrationConfig:
     init_basin_deg: float = 25.0  # an answer within this rotation of init,
     init_basin_of_longest: float = 0.5  # ... and this translation (x L), is in the init's basin
     # The verdict (``judge``): below or within these, an answer is not "reliable".
-    reliable_min_consistency: float = 0.6  # poor_fit below it (unreliable)
-    reliable_min_points: int = 40  # too_few_points: downsampled cloud points (unreliable)
+    reliable_min_consistency: float = 0.5  # poor_fit below it (unreliable)
+    reliable_min_points: int = 20  # too_few_points: downsampled cloud points (unreliable)
     reliable_min_returns: int = 12  # too_few_returns: LIDAR returns refined on (unreliable)
-    reliable_min_lead: float = 0.05  # close_alternative: a pose >= alternative_deg away within this
+    reliable_min_lead: float = 0.06  # close_alternative: a pose >= alternative_deg away within this
     max_span_of_longest: float = 20.0  # a cloud wider than this (x L): no pose
     returns_max_distance_m: float = 0.5  # correspondence gate of the returns' refinement
     returns_ambiguity_ratio: float = 1.25  # alternatives whose returns fit this close
