@@ -18,6 +18,7 @@ from sdcnet.training.pose_eval import (
     evaluate_frames,
     perturbed,
     report,
+    sigma_coverage,
     single_frames,
     summary,
     symmetric_errors,
@@ -68,6 +69,17 @@ def test_answers_marked_reliable_but_wrong_are_counted_beside_the_verdict_mix():
         "Over all 5 answers: 3 marked reliable, of which 2 wrong"
         in report({"run": frames}, ["completed"])[0]
     )
+
+
+def test_sigma_coverage_counts_errors_within_1_2_3_sigma():
+    frames = [
+        _frame(0.5, 0.01, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # within 1
+        _frame(1.5, 0.05, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # 2, 3
+        _frame(0.5, 0.01),  # no sigma: not covered
+        _frame(5.0, 0.01, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # beyond 3, 1
+    ]
+    rotation, translation = sigma_coverage(frames)
+    assert rotation == [25.0, 50.0, 50.0] and translation == [50.0, 50.0, 75.0]
 
 
 def test_errors_modulo_symmetry_forgive_a_twin_and_inits_are_perturbed_as_asked():

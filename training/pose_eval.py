@@ -79,6 +79,8 @@ class FrameResult:
     points: int = 0  # of the downsampled cloud registered
     symmetric_rotation_deg: float = float("nan")  # errors modulo the target's symmetries
     symmetric_translation_m: float = float("nan")
+    rotation_sigma_deg: float = float("nan")  # the answer's own (NaN: none)
+    translation_sigma_m: float = float("nan")
 
     @property
     def success(self) -> bool:
@@ -155,6 +157,8 @@ def _result(
         points=estimate.points,
         symmetric_rotation_deg=symmetric[0],
         symmetric_translation_m=symmetric[1],
+        rotation_sigma_deg=estimate.rotation_sigma_deg,
+        translation_sigma_m=estimate.translation_sigma_m,
     )
 
 
@@ -352,7 +356,35 @@ def report(results: dict[str, list[FrameResult]], clouds_order: list[str]) -> tu
         f"Over all {len(every)} answers: {len(reliable)} marked reliable, of which {wrong} "
         f"wrong (beyond {SUCCESS_DEG:g} degrees or {SUCCESS_M:g} m)."
     )
+    if reliable:
+        rotation, translation = sigma_coverage(reliable)
+        lines += [
+            "",
+            "Of those marked reliable, the errors within 1 / 2 / 3 times the answer's own "
+            "sigma: rotation "
+            + " / ".join(f"{c:.0f}" for c in rotation)
+            + " %, translation "
+            + " / ".join(f"{c:.0f}" for c in translation)
+            + " %.",
+        ]
     return "\n".join(lines), data
+
+
+def sigma_coverage(results: list[FrameResult]) -> tuple[list[float], list[float]]:
+    """Per cent of ``results`` whose rotation (then translation) error is within 1, 2 and 3
+    times the answer's ``rotation_sigma_deg`` (``translation_sigma_m``); an answer without a
+    sigma counts as not covered."""
+
+    def within(errors: np.ndarray, sigmas: np.ndarray) -> list[float]:
+        return [100 * float(np.mean(errors <= k * sigmas)) for k in (1, 2, 3)]
+
+    rows = np.array(
+        [
+            (r.rotation_deg, r.rotation_sigma_deg, r.translation_m, r.translation_sigma_m)
+            for r in results
+        ]
+    ).reshape(-1, 4)
+    return within(rows[:, 0], rows[:, 1]), within(rows[:, 2], rows[:, 3])
 
 
 def with_pose(sample: Sample, model: SpacecraftModel) -> Sample:
