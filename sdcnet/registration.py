@@ -25,7 +25,7 @@ From scratch (no initial pose):
    gaps). The target's self-symmetries (found once, ``TargetModel._symmetries``) turn the
    best into more candidates.
 4. ``returns`` (the LIDAR's own points, centimetre-accurate where the completed cloud is
-   decimetre-accurate) refine the candidates within ``ambiguity_margin`` of the best
+   decimetre-accurate) refine the candidates within ``returns_margin`` of the best
    consistency by point-to-plane ICP; the most consistent stays the answer unless another
    fits the returns clearly better. Those that fit about as well, far from it in rotation,
    make the answer ``ambiguous`` (a symmetric target) and are listed as alternatives.
@@ -85,6 +85,7 @@ class RegistrationConfig:
     coarse_truncation_of_longest: float = 0.05  # distances above it score the same
     grid_cell_of_longest: float = 1 / 40  # cell of the consistency grid
     ambiguity_margin: float = 0.04  # consistency within this of the best: an alternative
+    returns_margin: float = 0.1  # ... with returns: within this, refined on them to choose
     alternative_deg: float = 10.0  # ... when at least this far from the best in rotation
     max_candidates: int = 6  # the answer and its alternatives, at most
     tracking_min_consistency: float = 0.5  # below it, tracking falls back to the search
@@ -824,23 +825,23 @@ def _choose_searched(
     returns: np.ndarray | None,
     prior: Hypothesis | None = None,
 ) -> _Choice:
-    """Among the hypotheses as consistent as the best (within ``ambiguity_margin``): the
-    most consistent (or the ``prior``, the init's refined pose, unless the best is more
-    consistent by ``leave_init_margin`` and fits well: ``reliable_min_consistency``), unless
-    another fits the returns clearly better once refined on them (so near-symmetric poses do
-    not flip at random); the alternatives are those whose returns fit about as well (or,
-    without returns, all of them)."""
+    """Among the hypotheses about as consistent as the best (within ``returns_margin``, or
+    ``ambiguity_margin`` without returns): the most consistent (or the ``prior``, the init's
+    refined pose, unless the best is more consistent by ``leave_init_margin`` and fits well:
+    ``reliable_min_consistency``), unless another fits the returns clearly better once
+    refined on them (so near-symmetric poses do not flip at random, and a near-twin a little
+    more consistent on a coarse cloud does not win over the returns); the alternatives are
+    those whose returns fit about as well (or, without returns, all of them)."""
     config = model.config
     top = hypotheses[0].consistency
     if prior is not None and (
-        prior.consistency >= top - config.leave_init_margin
-        or top < config.reliable_min_consistency
+        prior.consistency >= top - config.leave_init_margin or top < config.reliable_min_consistency
     ):
         top = prior.consistency
         hypotheses = [prior, *(h for h in hypotheses if h is not prior)]
+    margin = config.ambiguity_margin if returns is None else config.returns_margin
     candidates = _distinct(
-        [h for h in hypotheses if h.consistency >= top - config.ambiguity_margin],
-        config.alternative_deg,
+        [h for h in hypotheses if h.consistency >= top - margin], config.alternative_deg
     )[: config.max_candidates]
     if returns is None:
         runner_up = _runner_up(model, candidates[0], hypotheses)
