@@ -119,7 +119,7 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     assert again["verdict"] == "reliable"
     # From a pose the frame contradicts (turned a quarter, metres away): the answer leaves it.
     R = axis_angle([0, 1, 0], np.pi / 2) @ truth.R
-    lost = json.dumps({"R": R.tolist(), "t": (truth.t + [3.0, 0, 0]).tolist()})
+    lost = json.dumps({"R": R.tolist(), "t": (truth.t + np.array([3.0, 0, 0])).tolist()})
     left = post(client, sample, target="probe", init=lost).json()
     assert not left["tracked"] and "left_init" in left["reasons"]
     assert left["verdict"] == "ambiguous"
