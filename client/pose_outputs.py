@@ -84,6 +84,20 @@ def pose_summary(answer: PoseAnswer, target: str, url: str, written: list[Path])
     return "\n".join(lines)
 
 
+def track_line(frame: str, answer: PoseAnswer) -> str:
+    """One line per frame of ``sdc-client track``: the verdict, tracked or not, t, latency."""
+    t = answer.pose.t
+    reasons = f" ({', '.join(answer.reasons)})" if answer.reasons else ""
+    if answer.answer["tracked"]:
+        how = "tracked"
+    else:
+        how = "left its init" if "left_init" in answer.reasons else "from scratch"
+    return (
+        f"{frame}: {answer.verdict}{reasons}, {how}, "
+        f"t [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] m, {answer.latency_s * 1e3:.0f} ms"
+    )
+
+
 def write_pose_outputs(
     out: Path, gray: np.ndarray, answer: PoseAnswer, points: np.ndarray
 ) -> list[Path]:

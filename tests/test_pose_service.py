@@ -272,6 +272,27 @@ def test_sdc_client_pose_prints_the_pose_and_draws_the_target(url, frames, tmp_p
     assert "--init" in capsys.readouterr().err
 
 
+def test_sdc_client_track_runs_a_sequence_from_its_own_motion(url, frames, tmp_path, capsys):
+    """Frames a, b (the same view) then c (another pose): b is tracked from a's answer, c
+    from the motion of a and b, which c contradicts."""
+    folder = tmp_path / "sequence"
+    folder.mkdir()
+    for name, (sample, _) in zip("abc", [frames[0], frames[0], frames[1]], strict=True):
+        (folder / f"{name}.png").write_bytes(png_bytes(sample.gray))
+        write_returns_csv(folder / f"{name}.csv", returns_from_dense(sample.sparse))
+    argv = ["track", str(folder), "--target", "probe", "--url", url, "--out", str(tmp_path)]
+    assert client_main(argv) == 0
+    printed = capsys.readouterr().out.splitlines()
+    answers = [json.loads(line) for line in (tmp_path / "poses.jsonl").read_text().splitlines()]
+    assert [a["frame"] for a in answers] == ["a", "b", "c"]
+    assert [a["tracked"] for a in answers] == [False, True, False]
+    assert answers[1]["verdict"] == "reliable" and "left_init" in answers[2]["reasons"]
+    assert pose_errors(parse_pose(answers[2]["pose"]), frames[1][1])[0] < ROTATION_DEG
+    assert printed[0].startswith("a: reliable, from scratch, t [")
+    assert printed[1].startswith("b: reliable, tracked")
+    assert printed[2].startswith("c: ambiguous (") and "left its init" in printed[2]
+
+
 def test_the_clients_form_has_a_boundary_that_is_in_no_part():
     body, headers = form_body({"f": ("f.bin", b"\r\n--sdcnet-form-0\r\n")}, {"a": "sdcnet-form-1"})
     assert headers["Content-Type"] == "multipart/form-data; boundary=sdcnet-form-2"
