@@ -6,6 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
+from sdcnet.registration import REASONS
 from sdcnet.service.schemas import FrameSummary, FrameTimings
 
 
@@ -53,9 +54,11 @@ class PoseResponse(BaseModel):
         "competes (see `alternatives`, `reasons`); unreliable: the frame does not support it"
     )
     reasons: list[str] = Field(
-        description="why the answer is not reliable (empty when it is): poor_fit, "
-        "too_few_points, too_few_returns (unreliable); symmetric_twins, close_alternative, "
-        "left_init (ambiguous)"
+        description="why the answer is not reliable (empty when it is): "
+        + "; ".join(
+            f"{code} ({'unreliable' if unreliable else 'ambiguous'}): {meaning}"
+            for code, (unreliable, meaning) in REASONS.items()
+        )
     )
     fitness: float = Field(
         description="share of the completed cloud within the inlier distance of the target"
