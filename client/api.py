@@ -99,7 +99,7 @@ class Completion:
 @dataclass
 class PoseAnswer:
     """One ``POST /pose`` answer: the pose (p_camera = R p_target + t, metres) and the rest of
-    the service's JSON (fitness, ambiguity, alternatives, the completion's summary...)."""
+    the service's JSON (verdict, fitness, ambiguity, alternatives, the completion's summary...)."""
 
     pose: Pose
     answer: dict[str, Any]
@@ -108,6 +108,16 @@ class PoseAnswer:
     @property
     def ambiguous(self) -> bool:
         return bool(self.answer.get("ambiguous"))
+
+    @property
+    def verdict(self) -> str:
+        """The verdict: "reliable", "ambiguous" or "unreliable" (see ``reasons``)."""
+        return str(self.answer.get("verdict"))
+
+    @property
+    def reasons(self) -> list[str]:
+        """Why the answer is not reliable: codes such as poor_fit, symmetric_twins, left_init."""
+        return list(self.answer.get("reasons", []))
 
     @property
     def alternatives(self) -> list[Pose]:

@@ -150,6 +150,8 @@ def pose_response(
         target=target.name,
         pose=_pose_value(estimate.pose),
         tracked=estimate.tracked,
+        verdict=estimate.verdict,
+        reasons=estimate.reasons,
         fitness=estimate.fitness,
         rmse_m=_finite(estimate.rmse_m),
         returns_rmse_m=None

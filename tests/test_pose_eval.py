@@ -3,8 +3,11 @@ bookkeeping (success, frames without a pose, the tables)."""
 
 import math
 
+import numpy as np
 import pytest
+import trimesh
 
+from sdcnet.rigid import Pose, axis_angle, pose_errors
 from sdcnet.runtime import OnnxModel
 from sdcnet.service.settings import shipped_model_path
 from sdcnet.targets import prepare_target
@@ -13,9 +16,12 @@ from sdcnet.training.pose_eval import (
     RAW,
     FrameResult,
     evaluate_frames,
+    perturbed,
     report,
+    sigma_coverage,
     single_frames,
     summary,
+    symmetric_errors,
 )
 
 
@@ -45,6 +51,49 @@ def test_success_needs_both_errors_within_bounds_and_a_missing_pose_fails():
     assert s["success_pct"] == 25.0
     assert s["rotation_mean_deg"] == (1.0 + 3.0 + 1.0) / 3
     assert s["translation_mean_pct_range"] == pytest.approx(100 * (0.1 + 0.1 + 0.3) / 3 / 100.0)
+
+
+def test_answers_marked_reliable_but_wrong_are_counted_beside_the_verdict_mix():
+    frames = [
+        _frame(0.5, 0.01, verdict="reliable"),
+        _frame(3.0, 0.01, verdict="reliable"),  # wrong in rotation
+        _frame(0.5, 0.5, verdict="reliable"),  # wrong in translation
+        _frame(170.0, 0.1, verdict="ambiguous", reasons=("symmetric_twins",)),
+        _frame(math.nan, math.nan),  # no pose: no verdict
+    ]
+    s = summary(frames)
+    assert s["reliable_but_wrong"] == 2
+    assert (s["verdict_reliable_pct"], s["verdict_ambiguous_pct"]) == (60.0, 20.0)
+    assert s["verdict_unreliable_pct"] == 0.0
+    assert (
+        "Over all 5 answers: 3 marked reliable, of which 2 wrong"
+        in report({"run": frames}, ["completed"])[0]
+    )
+
+
+def test_sigma_coverage_counts_errors_within_1_2_3_sigma():
+    frames = [
+        _frame(0.5, 0.01, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # within 1
+        _frame(1.5, 0.05, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # 2, 3
+        _frame(0.5, 0.01),  # no sigma: not covered
+        _frame(5.0, 0.01, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # beyond 3, 1
+    ]
+    rotation, translation = sigma_coverage(frames)
+    assert rotation == [25.0, 50.0, 50.0] and translation == [50.0, 50.0, 75.0]
+
+
+def test_errors_modulo_symmetry_forgive_a_twin_and_inits_are_perturbed_as_asked():
+    box = trimesh.creation.box((3.0, 2.0, 1.0))
+    target = prepare_target("box", box.vertices, box.faces)
+    truth = Pose(axis_angle([0.2, 1.0, -0.3], 1.1), np.array([0.1, 0.2, 60.0]))
+    twin = Pose.from_matrix(truth.matrix() @ target.model.symmetries[0])
+    assert pose_errors(twin, truth)[0] > 90
+    rotation_deg, translation_m = symmetric_errors(target, twin, truth)
+    assert rotation_deg < 0.5 and translation_m < 0.01
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        rotation_deg, translation_m = pose_errors(perturbed(truth, 10.0, 1.0, rng), truth)
+        assert rotation_deg == pytest.approx(10.0) and translation_m == pytest.approx(1.0)
 
 
 def test_the_report_separates_clouds_modes_and_spacecraft():

@@ -106,6 +106,7 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     rotation_deg, translation_m = pose_errors(parse_pose(answer["pose"]), truth)
     assert rotation_deg < ROTATION_DEG and translation_m < TRANSLATION_M
     assert not answer["tracked"] and answer["hypotheses"] > 1 and not answer["ambiguous"]
+    assert answer["verdict"] == "reliable" and answer["reasons"] == []
     assert answer["completion"]["returns"] == sample.meta["returns"]
     assert answer["completion"]["point_count"] > 1000
     assert 0.5 < answer["fitness"] <= 1 and answer["returns_rmse_m"] < 0.01
@@ -115,6 +116,13 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     again = post(client, sample, target="probe", init=json.dumps(answer["pose"])).json()
     assert again["tracked"] and again["hypotheses"] == 1 and again["timings"]["search_ms"] == 0
     assert pose_errors(parse_pose(again["pose"]), truth)[0] < ROTATION_DEG
+    assert again["verdict"] == "reliable"
+    # From a pose the frame contradicts (turned a quarter, metres away): the answer leaves it.
+    R = axis_angle([0, 1, 0], np.pi / 2) @ truth.R
+    lost = json.dumps({"R": R.tolist(), "t": (truth.t + np.array([3.0, 0, 0])).tolist()})
+    left = post(client, sample, target="probe", init=lost).json()
+    assert not left["tracked"] and "left_init" in left["reasons"]
+    assert left["verdict"] == "ambiguous"
     # A quaternion init works as well as a matrix.
     quaternion = {"quaternion_wxyz": answer["pose"]["quaternion_wxyz"], "t": answer["pose"]["t"]}
     assert post(client, sample, target="probe", init=json.dumps(quaternion)).json()["tracked"]
@@ -256,11 +264,33 @@ def test_sdc_client_pose_prints_the_pose_and_draws_the_target(url, frames, tmp_p
     assert np.count_nonzero(np.ptp(drawn.astype(int), axis=2) > 30) > 200
     # Tracking from the written answer.
     assert client_main([*argv, "--init", str(tmp_path / "out" / "pose.json")]) == 0
-    assert "tracked" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "tracked" in printed and f"verdict   {answer['verdict']}" in printed
     assert client_main([*argv[:4], "nope", *argv[5:]]) == 3
     assert "unknown_target" in capsys.readouterr().err
     assert client_main([*argv, "--init", "{not json"]) == 2
     assert "--init" in capsys.readouterr().err
+
+
+def test_sdc_client_track_runs_a_sequence_from_its_own_motion(url, frames, tmp_path, capsys):
+    """Frames a, b (the same view) then c (another pose): b is tracked from a's answer, c
+    from the motion of a and b, which c contradicts."""
+    folder = tmp_path / "sequence"
+    folder.mkdir()
+    for name, (sample, _) in zip("abc", [frames[0], frames[0], frames[1]], strict=True):
+        (folder / f"{name}.png").write_bytes(png_bytes(sample.gray))
+        write_returns_csv(folder / f"{name}.csv", returns_from_dense(sample.sparse))
+    argv = ["track", str(folder), "--target", "probe", "--url", url, "--out", str(tmp_path)]
+    assert client_main(argv) == 0
+    printed = capsys.readouterr().out.splitlines()
+    answers = [json.loads(line) for line in (tmp_path / "poses.jsonl").read_text().splitlines()]
+    assert [a["frame"] for a in answers] == ["a", "b", "c"]
+    assert [a["tracked"] for a in answers] == [False, True, False]
+    assert answers[1]["verdict"] == "reliable" and "left_init" in answers[2]["reasons"]
+    assert pose_errors(parse_pose(answers[2]["pose"]), frames[1][1])[0] < ROTATION_DEG
+    assert printed[0].startswith("a: reliable, from scratch, t [")
+    assert printed[1].startswith("b: reliable, tracked")
+    assert printed[2].startswith("c: ambiguous (") and "left its init" in printed[2]
 
 
 def test_the_clients_form_has_a_boundary_that_is_in_no_part():
@@ -298,6 +328,7 @@ def test_a_symmetric_target_is_answered_ambiguous_with_its_alternatives(tmp_path
     with TestClient(create_app(settings)) as http:
         answer = post(http, sample, target="box").json()
     assert answer["ambiguous"] and answer["alternatives"]
+    assert answer["verdict"] == "ambiguous" and "symmetric_twins" in answer["reasons"]
     # Twins: other rotations of the box in the same place, the truth among them.
     best = parse_pose(answer["pose"])
     twins = [parse_pose(a["pose"]) for a in answer["alternatives"]]

@@ -359,10 +359,26 @@ def parser() -> argparse.ArgumentParser:
     q.add_argument("--split", default="test")
     q.add_argument("--limit", type=int, default=18, help="models of the split, evenly spread")
     q.add_argument("--views", type=int, default=4, help="single frames per model")
-    q.add_argument("--seed", type=int, default=0, help="of the real meshes' frames")
+    q.add_argument("--seed", type=int, default=0, help="of the real meshes' frames and inits")
+    q.add_argument(
+        "--clouds",
+        nargs="*",
+        choices=["completed", "classical fill"],
+        default=["completed", "classical fill"],
+        help="the clouds registered beside the raw returns",
+    )
+    q.add_argument(
+        "--no-perturbed",
+        dest="perturbed",
+        action="store_false",
+        help="leave out the single frames tracked from perturbed true poses",
+    )
     q.add_argument("--sequences", nargs="*", default=[], help="folders made by `sdc-data sequence`")
     q.add_argument(
-        "--gallery", type=int, default=5, help="worst real frames in failures*.png, per cloud"
+        "--gallery",
+        type=int,
+        default=5,
+        help="worst real frames in failures*.png, per cloud (0: no pictures)",
     )
     q.add_argument(
         "--redraw", action="store_true", help="only the pictures, from --out's pose_eval.json"
@@ -413,9 +429,12 @@ def cmd_pose(args: argparse.Namespace) -> int:
     from sdcnet.targets import load_target
     from sdcnet.training import pose_eval
 
-    onnx = OnnxModel(args.onnx, threads=args.threads)
-    completed = network(onnx.run, onnx.stride, onnx.info.work_pixels)
-    methods = {"completed": completed, "classical fill": classical}
+    methods = {}
+    if "completed" in args.clouds:
+        onnx = OnnxModel(args.onnx, threads=args.threads)
+        methods["completed"] = network(onnx.run, onnx.stride, onnx.info.work_pixels)
+    if "classical fill" in args.clouds:
+        methods["classical fill"] = classical
     entries = read_mesh_folder(args.meshes)
     real_config = GenerateConfig(models=0, views=args.views, seed=args.seed, meshes=entries)
     real = {k: (build_model(real_config, k), load_target(entry)) for k, entry in enumerate(entries)}
@@ -451,9 +470,12 @@ def cmd_pose(args: argparse.Namespace) -> int:
         sample = make_sample(real_config, model, model_id, view, "real")
         return target, pose_eval.with_pose(sample, model)
 
-    for cloud, name in (("completed", "failures.png"), (pose_eval.RAW, "failures_raw.png")):
+    if not args.gallery or not methods:
+        return 0
+    first = next(iter(methods))  # its depth is drawn beside the returns
+    for cloud, name in ((first, "failures.png"), (pose_eval.RAW, "failures_raw.png")):
         picks = [(r, *load(r)) for r in pose_eval.pick_failures(scratch, cloud, args.gallery)]
-        rows = pose_eval.gallery_rows(picks, completed, cloud)
+        rows = pose_eval.gallery_rows(picks, methods[first], cloud)
         cv2.imwrite(str(out / name), montage(rows, tile=256))
         print(out / name)
     return 0
@@ -468,9 +490,11 @@ def _pose_results(args, methods, real_config, real, stores) -> dict:
     test_config, procedural = pose_eval.procedural_models(args.dataset, sorted(ids))
     single_ids = pose_eval.split_ids(args.dataset, args.split, args.limit)
     targets = {t.name: t for _, t in [*real.values(), *procedural.values()]}
-    real_frames = pose_eval.single_frames(real_config, real, args.views, "real")
-    test_frames = pose_eval.single_frames(
-        test_config, {m: procedural[m] for m in single_ids}, args.views, args.split
+    real_frames = list(pose_eval.single_frames(real_config, real, args.views, "real"))
+    test_frames = list(
+        pose_eval.single_frames(
+            test_config, {m: procedural[m] for m in single_ids}, args.views, args.split
+        )
     )
     results = {
         f"Real spacecraft, single frames from scratch ({args.views} views each)": (
@@ -479,6 +503,14 @@ def _pose_results(args, methods, real_config, real, stores) -> dict:
         f"Test split ({len(single_ids)} models), single frames from scratch "
         f"({args.views} views each)": pose_eval.evaluate_frames(test_frames, methods),
     }
+    if args.perturbed:
+        results[f"Real spacecraft, tracked from perturbed true poses ({args.views} views each)"] = (
+            pose_eval.evaluate_perturbed(real_frames, methods, args.seed)
+        )
+        results[
+            f"Test split ({len(single_ids)} models), tracked from perturbed true poses "
+            f"({args.views} views each)"
+        ] = pose_eval.evaluate_perturbed(test_frames, methods, args.seed)
     for name, store in stores.items():
         count = len({r["model_name"] for r in store.records})
         results[f"Sequences {name} ({count} spacecraft), tracked at 10 Hz"] = (

@@ -70,7 +70,9 @@ async def pose(
 
     Without `init` the pose is searched from scratch; with it, refined from it (tracking at
     the LIDAR's 10 Hz), falling back to the search when the refinement explains the frame
-    poorly. A symmetric target's answer says `ambiguous` and lists the alternatives.
+    poorly; the answer stays near `init` unless the frame clearly contradicts it. Every
+    answer carries a `verdict` (reliable, ambiguous, unreliable) and its `reasons`; a
+    symmetric target's answer says `ambiguous` and lists the alternatives.
     """
     req = PoseRequest(frame=frame, target=target, init=init)
     answer, timer = await run_in_threadpool(
