@@ -37,7 +37,7 @@ def test_two_cameras_seeing_the_same_scene_give_the_same_mask_within_a_pixel_of_
     test_model = min(m for m, split in model_splits(config).items() if split == "test")
     spacecraft = build_model(config, test_model)
     rng = np.random.default_rng(seed)
-    distance = 3.0 * spacecraft.radius_m / math.tan(math.radians(20.0) / 2)
+    distance = 1.5 * spacecraft.radius_m / math.tan(math.radians(20.0) / 2)
     sun = np.array([0.3, -0.4, -1.0]) / np.linalg.norm([0.3, -0.4, -1.0])
     scene = Scene(random_rotation(rng), np.array([0.0, 0.0, distance]), sun, 25.0)
     posed = PosedModel.place(spacecraft, scene)
