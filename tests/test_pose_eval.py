@@ -12,6 +12,7 @@ from sdcnet.runtime import OnnxModel
 from sdcnet.service.settings import shipped_model_path
 from sdcnet.targets import prepare_target
 from sdcnet.training.data.generate import GenerateConfig, build_model
+from sdcnet.training.evaluate import network
 from sdcnet.training.pose_eval import (
     RAW,
     FrameResult,
@@ -117,7 +118,12 @@ def test_the_shipped_models_cloud_gives_the_pose_of_a_rendered_frame():
     target = prepare_target(craft.name, craft.mesh.vertices, craft.mesh.faces)
     onnx = OnnxModel(shipped_model_path(), threads=2)
     frames = single_frames(config, {0: (craft, target)}, 1, "test")
-    results = {r.cloud: r for r in evaluate_frames(frames, {"completed": (onnx.run, onnx.stride)})}
+    results = {
+        r.cloud: r
+        for r in evaluate_frames(
+            frames, {"completed": network(onnx.run, onnx.stride, onnx.info.work_pixels)}
+        )
+    }
     assert set(results) == {"completed", RAW}
     completed = results["completed"]
     assert completed.success, completed
