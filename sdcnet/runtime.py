@@ -174,11 +174,10 @@ class OnnxModel:
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         options.add_session_config_entry(SPIN_WAIT, "1" if spin_wait else "0")
         # onnxruntime's CPU arena keeps what the largest inference grew; the pipeline feeds
-        # every frame at a fixed budget of working pixels, so that is one frame's activations.
-        # Measured on SDCNet over 80 working grids of 64 to 4096 px sides (2 threads, glibc
-        # with 2 malloc arenas): resident 89 MiB loaded; arena on: 136 MiB at most, 133 at
-        # the end; off: 155 and 155 (glibc keeps the freed blocks instead); shrunk after every
-        # run: 168 and 163, and slower. Kept on, and said so.
+        # every frame at a fixed budget of working pixels, so that is one frame's activations,
+        # reused by the next frame. Without the arena glibc keeps the freed blocks instead, and
+        # shrinking it after every run costs time: both hold more memory, not less
+        # (docs/development.md, "Measurements").
         options.enable_cpu_mem_arena = True
         try:
             self.session = ort.InferenceSession(
