@@ -15,7 +15,6 @@ answer raises ``ServiceError`` with the service's code and message.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import random
@@ -30,6 +29,9 @@ import numpy as np
 
 from sdcnet.client import form, protocol
 from sdcnet.client.transport import TRANSPORT_ERRORS, ConnectTimeoutError, Reply, Transport
+from sdcnet.formats import FormatError, npy
+from sdcnet.formats.sparse import depth_from_png16, sparse_format
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.pipeline import to_gray
 from sdcnet.returns import ReturnsError, check_returns, parse_returns_csv, returns_from_dense
 from sdcnet.rigid import Pose, parse_pose
@@ -141,10 +143,6 @@ def read_file(path: str | Path, what: str = "input") -> bytes:
         raise InputError(f"cannot read {what} file {path}: {exc.strerror or exc}") from None
 
 
-NPY_MAGIC = b"\x93NUMPY"
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
 def gray_array(gray: Source) -> np.ndarray:
     """The gray image as uint8/uint16 (H, W): the array itself, or an image file (PNG, TIFF,
     JPEG, BMP; path or bytes) decoded as the service decodes it, colour converted to gray."""
@@ -162,28 +160,28 @@ def gray_array(gray: Source) -> np.ndarray:
     return to_gray(image)
 
 
-def _load_npy(data: bytes) -> np.ndarray:
-    try:
-        return np.load(io.BytesIO(data), allow_pickle=False)
-    except (ValueError, EOFError, OSError) as exc:
-        raise InputError(f"cannot read the sparse .npy: {exc}") from None
-
-
 def _sparse_array(data: bytes, depth_scale: float | None, label: str) -> np.ndarray:
-    """A dense map or a returns list from file bytes: .npy, 16-bit PNG (times ``depth_scale``
-    metres per unit) or CSV (``row,col,z_m``; its errors start with ``label``)."""
-    if data.startswith(NPY_MAGIC):
-        return _load_npy(data)
-    if data.startswith(PNG_SIGNATURE):
-        if depth_scale is None:
-            raise InputError("a 16-bit PNG sparse map needs depth_scale (metres per unit)")
-        units = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-        if units is None or units.dtype != np.uint16 or units.ndim != 2:
-            raise InputError("a sparse PNG must be single-channel 16-bit")
-        return units.astype(np.float32) * np.float32(depth_scale)
+    """A dense map or a returns list from file bytes (``sdcnet.formats.sparse``): .npy,
+    16-bit PNG (times ``depth_scale`` metres per unit) or CSV (``row,col,z_m``; its errors
+    start with ``label``)."""
+    kind = sparse_format(data)
     try:
-        return parse_returns_csv(data.decode("utf-8"), label)
-    except UnicodeDecodeError:
+        if kind == "npy":
+            return npy.read_floats(data, "sparse")
+        if kind == "png":
+            if depth_scale is None:
+                raise InputError("a 16-bit PNG sparse map needs depth_scale (metres per unit)")
+            units = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            if units is None:
+                raise InputError("cannot decode the sparse PNG (truncated or corrupt)")
+            return depth_from_png16(units, depth_scale)
+    except FormatError as exc:
+        raise InputError(str(exc)) from None
+    try:
+        return parse_returns_csv(data, label)
+    except ReturnsError as exc:
+        if exc.code != "not_text":
+            raise
         raise InputError(
             "sparse must be a .npy file, a 16-bit PNG (with depth_scale) or a CSV of returns "
             "(header row,col,z_m)"
@@ -366,7 +364,7 @@ class Client:
         latency = time.perf_counter() - start
         try:
             answer = protocol.read_answer(
-                response.content, response.headers.get(protocol.HEADER_LENGTH), image.shape
+                response.content, response.headers.get(HEADER_LENGTH), image.shape
             )
         except protocol.AnswerError as exc:
             raise ClientError(f"unexpected answer from {self.url}{protocol.PATH}: {exc}") from exc

@@ -19,11 +19,10 @@ from typing import Any
 import numpy as np
 
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
+from sdcnet.formats.v2 import DTYPES, HEADER_LENGTH
 
 PATH = "/v2/models/sdcnet/infer"
-HEADER_LENGTH = "Inference-Header-Content-Length"
-_GRAY_DATATYPES = {np.dtype(np.uint8): "UINT8", np.dtype(np.uint16): "UINT16"}
-_DTYPES = {"UINT8": "u1", "FP16": "<f2", "FP32": "<f4"}
+_GRAY_DATATYPES = {DTYPES[name]: name for name in ("UINT8", "UINT16")}
 _TIMINGS = ("decode_ms", "queue_ms", "inference_ms", "encode_ms")
 _INTRINSICS = ("fx", "fy", "cx", "cy")
 
@@ -89,7 +88,7 @@ def _tensor(output: dict, binary: bytes, offset: int) -> tuple[np.ndarray, int]:
     size = output["parameters"]["binary_data_size"]
     if offset + size > len(binary):
         raise AnswerError(f"output {output['name']} runs past the end of the binary data")
-    dtype = np.dtype(_DTYPES[output["datatype"]])
+    dtype = DTYPES[output["datatype"]]
     array = np.frombuffer(binary, dtype, size // dtype.itemsize, offset)
     return array, offset + size
 

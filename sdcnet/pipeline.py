@@ -308,10 +308,10 @@ def drop_specks(
     the spacecraft. One without returns (a boom or an antenna too thin or dark for the beams,
     or a star) is kept when it covers at least ``min_part_px`` pixels and a chain of foreground
     components, each within ``keep_distance_px`` (Chebyshev) of the next, links it to a return.
-    On 42 test-split and 64 real-mesh frames of the first shipped model, return-less components
-    off the target were a median 90-120 px from the nearest return and 2 px in area, the parts
-    of the spacecraft 14-22 px away; with 16 px and 8 px the false specks per frame fell from
-    10.6 to 0.05 (test split) and 10.1 to 0.03 (real meshes), 10-16 true pixels lost per frame.
+    Specks off the target lie far from every return and cover a few pixels; the parts of the
+    spacecraft lie a few spacings of returns away and are larger, so a distance and an area
+    between the two keep the one and drop the other (the frames that chose
+    ``KEEP_DISTANCE_PX`` and ``MIN_PART_PX``: docs/development.md, "Measurements").
 
     One dilation by half the distance joins what is linked; its connected pieces that hold a
     return are the spacecraft's reach.

@@ -9,6 +9,7 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import onnxruntime as ort
@@ -64,19 +65,23 @@ def model_metadata(
     return meta
 
 
+def provider_name(requested: str) -> str:
+    """onnxruntime's name of an execution provider given in short ("cpu", "cuda",
+    "tensorrt", "openvino") or in full ("TensorrtExecutionProvider"), in any case; a name
+    onnxruntime does not know comes back as given."""
+    key = requested.strip().lower().removesuffix("executionprovider")
+    known = {
+        name.lower().removesuffix("executionprovider"): name for name in ort.get_all_providers()
+    }
+    return known.get(key, requested)
+
+
 def choose_providers(requested: str | None = None) -> list[str]:
-    """Execution providers to use: ``requested`` alone (must be available), else CUDA then CPU."""
+    """Execution providers to use: ``requested`` alone (``provider_name``; it must be
+    available here), else CUDA then CPU."""
     available = ort.get_available_providers()
     if requested:
-        name = (
-            requested
-            if requested.endswith("ExecutionProvider")
-            else f"{requested.upper()}ExecutionProvider"
-        )
-        name = {
-            "CUDAEXECUTIONPROVIDER": "CUDAExecutionProvider",
-            "CPUEXECUTIONPROVIDER": "CPUExecutionProvider",
-        }.get(name.upper(), name)
+        name = provider_name(requested)
         if name not in available:
             raise ModelLoadError(
                 f"execution provider {requested!r} is not available here; available: {available}"
@@ -120,8 +125,36 @@ def _info(session: ort.InferenceSession, path: Path) -> ModelInfo:
     )
 
 
+class Runtime(Protocol):
+    """An sdcnet model loaded under an inference runtime, as the service uses it: ``run`` is
+    the pipeline's model callable, ``info`` what the file says about itself, ``provider``
+    where it runs, ``threads`` its intra-op threads, ``platform`` the runtime and file format
+    in KServe's words (``onnxruntime_onnx``, ``tensorrt_plan``, ``openvino``...)."""
+
+    path: Path
+    info: ModelInfo
+    provider: str
+    threads: int
+    platform: str
+
+    @property
+    def stride(self) -> int:
+        """Pixels the input's height and width must be multiples of."""
+        ...
+
+    def run(
+        self, gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(B, 1, h, w) float32 gray in [0, 1] and sparse metres, (B, 1, 1, 1) focal length in
+        pixels -> depth (m), probability, sigma (m)."""
+        ...
+
+
 class OnnxModel:
-    """An sdcnet ONNX model loaded once; ``run`` is the pipeline's model callable."""
+    """An sdcnet ONNX model loaded once under onnxruntime (a ``Runtime``); ``run`` is the
+    pipeline's model callable."""
+
+    platform = "onnxruntime_onnx"
 
     def __init__(
         self,
@@ -141,11 +174,10 @@ class OnnxModel:
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         options.add_session_config_entry(SPIN_WAIT, "1" if spin_wait else "0")
         # onnxruntime's CPU arena keeps what the largest inference grew; the pipeline feeds
-        # every frame at a fixed budget of working pixels, so that is one frame's activations.
-        # Measured on SDCNet over 80 working grids of 64 to 4096 px sides (2 threads, glibc
-        # with 2 malloc arenas): resident 89 MiB loaded; arena on: 136 MiB at most, 133 at
-        # the end; off: 155 and 155 (glibc keeps the freed blocks instead); shrunk after every
-        # run: 168 and 163, and slower. Kept on, and said so.
+        # every frame at a fixed budget of working pixels, so that is one frame's activations,
+        # reused by the next frame. Without the arena glibc keeps the freed blocks instead, and
+        # shrinking it after every run costs time: both hold more memory, not less
+        # (docs/development.md, "Measurements").
         options.enable_cpu_mem_arena = True
         try:
             self.session = ort.InferenceSession(
@@ -162,6 +194,7 @@ class OnnxModel:
 
     @property
     def stride(self) -> int:
+        """Pixels the input's height and width must be multiples of."""
         return self.info.stride
 
     def run(

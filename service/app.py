@@ -17,7 +17,7 @@ from typing import Any
 from fastapi import FastAPI
 
 from sdcnet import __version__
-from sdcnet.runtime import ModelLoadError, OnnxModel
+from sdcnet.runtime import ModelLoadError, OnnxModel, Runtime
 from sdcnet.service.admission import Admission
 from sdcnet.service.camera import ServiceCamera, configured_camera
 from sdcnet.service.errors import install_error_handlers
@@ -43,7 +43,7 @@ Every error, whatever its status, is `{"error": {"code": ..., "message": ...}}`
 """
 
 
-def load_model(settings: Settings) -> OnnxModel:
+def load_model(settings: Settings) -> Runtime:
     """The ONNX model the settings name, checked by one inference on a small frame; raises
     ``ModelLoadError`` with a clear message, so that a file that loads but cannot serve stops
     the start-up rather than failing every request."""
@@ -88,7 +88,7 @@ def complete_openapi(app: FastAPI) -> None:
 
 def create_app(
     settings: Settings | None = None,
-    model: OnnxModel | None = None,
+    model: Runtime | None = None,
     targets: dict[str, Target] | None = None,
     camera: ServiceCamera | None = None,
 ) -> FastAPI:

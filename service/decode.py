@@ -15,7 +15,6 @@ library's words (and its hints on how to lift a limit) stay out of them. The che
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -24,20 +23,14 @@ import cv2
 import numpy as np
 
 from sdcnet.camera import Intrinsics
+from sdcnet.formats import FormatError, npy
+from sdcnet.formats.image_header import ImageHeader, check_decoding_work, read_header
+from sdcnet.formats.sparse import depth_from_png16, sparse_format
 from sdcnet.pipeline import to_gray
 from sdcnet.returns import ReturnsError, dense_from_returns, parse_returns_csv
-from sdcnet.service.errors import ApiError
-from sdcnet.service.image_header import (
-    PNG_SIGNATURE,
-    HeaderError,
-    ImageHeader,
-    UnknownFormatError,
-    check_decoding_work,
-    read_header,
-)
+from sdcnet.service.errors import ApiError, format_error
 from sdcnet.service.schemas import ResponseFormat
 
-NPY_MAGIC = b"\x93NUMPY"
 _GRAY_DTYPES = (np.uint8, np.uint16)
 
 
@@ -180,15 +173,10 @@ def _header(field: str, data: bytes, max_pixels: int) -> ImageHeader:
     """The image's header, checked against the pixel limit and for decoding work beyond it."""
     try:
         header = read_header(data)
-    except UnknownFormatError as exc:
-        raise ApiError(415, "unsupported_media_type", f"{field}: {exc}") from exc
-    except HeaderError as exc:
-        raise ApiError(400, "unreadable_file", f"{field}: {exc}") from exc
-    _too_large(field, header.width, header.height, max_pixels)
-    try:
+        _too_large(field, header.width, header.height, max_pixels)
         check_decoding_work(data, header)
-    except HeaderError as exc:
-        raise ApiError(400, "unreadable_file", f"{field}: {exc}") from exc
+    except FormatError as exc:
+        raise format_error(exc, field) from exc
     return header
 
 
@@ -229,7 +217,8 @@ def decode_sparse(
     bytes -> float32 (H, W) metres, 0 = no return; values checked. ``frame``: the gray
     image's (width, height), which the header's size must be, checked before decoding."""
     _not_empty("sparse", data)
-    if data.startswith(NPY_MAGIC):
+    kind = sparse_format(data)
+    if kind == "npy":
         if depth_scale is not None:
             raise ApiError(
                 422,
@@ -237,7 +226,7 @@ def decode_sparse(
                 "depth_scale applies to 16-bit PNG sparse maps only; a .npy holds metres",
             )
         sparse = _npy(data, max_pixels, frame)
-    elif data.startswith(PNG_SIGNATURE):
+    elif kind == "png":
         if depth_scale is None:
             raise ApiError(
                 422,
@@ -256,51 +245,14 @@ def decode_sparse(
     return sparse
 
 
-def _npy_floats(field: str, data: bytes, check_shape: Callable[[tuple], None]) -> np.ndarray:
-    """float32 array of ``.npy`` bytes of float32/float64 values, read in place (never
-    unpickled); ``check_shape(shape)`` runs on the header's shape before the data is read."""
-    stream = io.BytesIO(data)
+def _npy_floats(
+    field: str, data: bytes, check_shape: Callable[[tuple[int, ...]], None]
+) -> np.ndarray:
+    """``sdcnet.formats.npy.read_floats``, its errors answered in the service's shape."""
     try:
-        major, _ = np.lib.format.read_magic(stream)
-        read = (
-            np.lib.format.read_array_header_1_0
-            if major == 1
-            else np.lib.format.read_array_header_2_0
-        )
-        shape, fortran, dtype = read(stream)
-    except Exception:  # numpy parses the header dict with tokenize/ast: any error type
-        raise ApiError(
-            400,
-            "unreadable_file",
-            f"{field}: not a valid .npy header (a dict of descr, fortran_order and shape, "
-            "each of a plain value)",
-        ) from None
-    if dtype.hasobject:
-        raise ApiError(
-            400,
-            "pickle_not_allowed",
-            f"{field} .npy holds Python objects, which would need unpickling; this service "
-            "never unpickles: send float32 or float64 metres",
-        )
-    if dtype.kind != "f" or dtype.itemsize not in (4, 8):
-        raise ApiError(
-            422, "wrong_dtype", f"{field} .npy must hold float32 or float64 metres, got {dtype}"
-        )
-    if any(size < 0 for size in shape):
-        raise ApiError(
-            400, "unreadable_file", f"{field}: the .npy header declares a negative size {shape}"
-        )
-    check_shape(shape)
-    count = math.prod(shape)
-    if len(data) - stream.tell() < count * dtype.itemsize:
-        raise ApiError(
-            400,
-            "unreadable_file",
-            f"{field}: the .npy data is shorter than its header's {list(shape)} {dtype} "
-            "array (truncated?)",
-        )
-    values = np.frombuffer(data, dtype, count, stream.tell())
-    return values.reshape(shape, order="F" if fortran else "C").astype(np.float32, order="C")
+        return npy.read_floats(data, field, check_shape)
+    except FormatError as exc:
+        raise format_error(exc) from None
 
 
 def _npy(data: bytes, max_pixels: int, frame: tuple[int, int] | None) -> np.ndarray:
@@ -329,7 +281,7 @@ def decode_returns(data: bytes, most: int, frame: tuple[int, int]) -> np.ndarray
         f"more than {most} returns, the most this service takes for a {width} x {height} "
         "frame (at most one per pixel, and max_returns)",
     )
-    if data.startswith(NPY_MAGIC):
+    if sparse_format(data) == "npy":
 
         def return_list(shape: tuple) -> None:
             if len(shape) != 2 or shape[1] != 3:
@@ -373,14 +325,10 @@ def _png_depth(
     if frame is not None:
         _same_size(frame, (header.width, header.height))
     image = _imdecode("sparse", data, header)
-    if image.dtype != np.uint16 or image.ndim != 2:
-        channels = 1 if image.ndim == 2 else image.shape[2]
-        raise ApiError(
-            422,
-            "wrong_dtype",
-            f"a sparse PNG must be single-channel 16-bit, got {channels}-channel {image.dtype}",
-        )
-    return image.astype(np.float32) * np.float32(depth_scale)
+    try:
+        return depth_from_png16(image, depth_scale)
+    except FormatError as exc:
+        raise format_error(exc) from None
 
 
 def check_depths(sparse: np.ndarray) -> None:

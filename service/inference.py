@@ -23,7 +23,7 @@ from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.compact import mask_window
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
-from sdcnet.runtime import ModelLoadError, OnnxModel
+from sdcnet.runtime import ModelLoadError, Runtime
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
 from sdcnet.service.encode import encode
@@ -73,10 +73,10 @@ class PhaseTimer:
 
 
 class Engine:
-    """The model, loaded once, run one request at a time: onnxruntime already spreads one
+    """The model, loaded once, run one request at a time: the runtime already spreads one
     inference over all its intra-op threads, so running two at once only makes both slower."""
 
-    def __init__(self, model: OnnxModel):
+    def __init__(self, model: Runtime):
         self.model = model
         self._lock = threading.Lock()
 
@@ -97,7 +97,7 @@ class Engine:
             self._lock.release()
 
 
-def self_test(model: OnnxModel) -> None:
+def self_test(model: Runtime) -> None:
     """Complete one small synthetic frame (``SELF_TEST_SIZE`` px, one LIDAR return at 100 m)
     through the service's own pipeline; raises ``ModelLoadError`` when that fails.
 
@@ -151,7 +151,7 @@ class Completed:
         and mask are 0 (``sdcnet.compact.mask_window``, searched within the region)."""
         return mask_window(self.mask[self.region.slices], self.region.y0, self.region.x0)
 
-    def frame_summary(self, model: OnnxModel) -> FrameSummary:
+    def frame_summary(self, model: Runtime) -> FrameSummary:
         """The frame's summary without timings (``POST /pose``'s ``completion``)."""
         K = self.intrinsics
         return FrameSummary(
@@ -167,7 +167,7 @@ class Completed:
             uncertain_removed=self.uncertain_removed,
         )
 
-    def summary(self, model: OnnxModel, timer: PhaseTimer) -> CompletionSummary:
+    def summary(self, model: Runtime, timer: PhaseTimer) -> CompletionSummary:
         """The completion protocols' summary: the frame's, and the timings."""
         return CompletionSummary(**dict(self.frame_summary(model)), timings=timer.timings())
 

@@ -185,7 +185,8 @@ def pose_response(
 POSE_PHASES = ("decode", "queue", "inference", "cloud", "registration")
 #: Without ``max_sigma``, the points whose sigma is above this quantile of the frame's are
 #: left out of the registration: the 10 % most uncertain, those whose leaving out must cut the
-#: depth's MAE of the rest by 30 % or more (issue 24's calibration target for the model).
+#: depth's MAE of the rest by 30 % or more: the model's sigma is calibrated for that
+#: (docs/service.md).
 POSE_SIGMA_QUANTILE = 0.9
 
 

@@ -40,7 +40,8 @@ class Settings(BaseSettings):
     )
     provider: str | None = Field(
         default=None,
-        description="onnxruntime execution provider: 'cpu', 'cuda' or a full provider name; "
+        description="onnxruntime execution provider, short ('cpu', 'cuda', 'tensorrt', "
+        "'openvino') or in full ('TensorrtExecutionProvider'); "
         "default: CUDA when onnxruntime-gpu and a GPU are present, else CPU",
     )
     threads: int = Field(

@@ -37,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX
 from sdcnet.compact import crop, fp16_residuals, pack_mask
+from sdcnet.formats.v2 import DTYPES, HEADER_LENGTH
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import Frame, InputLimits, frame_of
 from sdcnet.service.deps import MODEL_NAME
@@ -47,14 +48,6 @@ from sdcnet.service.schemas import CompletionSummary
 from sdcnet.service.spool import Spool
 from sdcnet.service.v2_json import DataArray, JsonDataError, data_values, split_data
 
-HEADER_LENGTH = "Inference-Header-Content-Length"
-#: numpy type of each datatype the protocol's tensors use here; binary data is little-endian.
-DTYPES = {
-    "UINT8": np.dtype("u1"),
-    "UINT16": np.dtype("<u2"),
-    "FP16": np.dtype("<f2"),
-    "FP32": np.dtype("<f4"),
-}
 #: input name -> (datatypes it takes, shape it has: -1 = any size)
 INPUTS = {
     "gray": (("UINT8", "UINT16"), (-1, -1)),

@@ -14,6 +14,7 @@ import numpy as np
 
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR, Intrinsics
 from sdcnet.dataset_format import Sample, sample_id, write_manifest, write_sample
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.npyio import npy_bytes
 
 
@@ -149,4 +150,4 @@ def v2_body(gray: np.ndarray, returns: np.ndarray) -> tuple[bytes, dict[str, str
     sends one by default: gray UINT8 and returns FP32 as binary data, every output binary."""
     inputs, binary = v2_inputs(gray, returns, binary=True)
     header = json.dumps({"inputs": inputs, "parameters": {"binary_data_output": True}}).encode()
-    return header + binary, {"Inference-Header-Content-Length": str(len(header))}
+    return header + binary, {HEADER_LENGTH: str(len(header))}

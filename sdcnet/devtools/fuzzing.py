@@ -15,6 +15,7 @@ import trimesh
 from sdcnet.camera import PAPER_CAMERA, Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.devtools.frames import png_bytes, v2_inputs
 from sdcnet.devtools.targets import write_targets
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense
 
@@ -129,7 +130,7 @@ def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
         header = json.dumps({"inputs": inputs}).encode()
         kwargs["data"] = header + binary
         # (the transport takes headers from the case only; an undeclared header keeps it valid)
-        case.headers = {**(case.headers or {}), "Inference-Header-Content-Length": str(len(header))}
+        case.headers = {**(case.headers or {}), HEADER_LENGTH: str(len(header))}
 
 
 INTRINSICS = ("fx", "fy", "cx", "cy")

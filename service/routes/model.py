@@ -69,7 +69,7 @@ async def model_metadata(
     return ModelMetadata(
         name=MODEL_NAME,
         versions=[info.version],
-        platform="onnxruntime_onnx",
+        platform=model.platform,
         inputs=_tensors(v2.INPUTS),
         outputs=_tensors(v2.OUTPUTS),
         version=info.version,

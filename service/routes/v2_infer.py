@@ -12,6 +12,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool
 
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.service import v2
 from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep, input_limits
 from sdcnet.service.errors import V2_ERROR_RESPONSES, ApiError
@@ -39,7 +40,7 @@ _REQUEST_BODY = {
     },
 }
 _HEADER_LENGTH_DOC = {
-    v2.HEADER_LENGTH: {
+    HEADER_LENGTH: {
         "description": "length of the JSON header in bytes, when binary data follows it",
         "schema": {"type": "integer", "minimum": 1},
     }
@@ -82,7 +83,7 @@ async def infer(
     body = bytearray()  # grown in place: Request.body() holds the chunks and their join
     async for chunk in request.stream():
         body += chunk
-    header_length = request.headers.get(v2.HEADER_LENGTH)
+    header_length = request.headers.get(HEADER_LENGTH)
     answer = await run_in_threadpool(
         v2.answer, engine, body, header_length, input_limits(settings), camera
     )

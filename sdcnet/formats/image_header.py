@@ -18,7 +18,8 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+from sdcnet.formats import PNG_SIGNATURE, FormatError
+
 _TIFF_WIDTH, _TIFF_LENGTH = 256, 257
 _TIFF_SHORT, _TIFF_LONG = 3, 4
 # JPEG start-of-frame markers: C0-CF except DHT (C4), JPG (C8) and DAC (CC).
@@ -37,12 +38,14 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # by colour type
 _INFLATE_STEP = 2**20  # bytes inflated at a time while the PNG data is measured
 
 
-class HeaderError(ValueError):
-    """The header of an accepted image format is broken."""
+class HeaderError(FormatError):
+    """The header of an accepted image format is broken (code ``unreadable_file``)."""
 
 
 class UnknownFormatError(HeaderError):
     """The bytes are none of the accepted image formats."""
+
+    code = "unsupported_media_type"
 
 
 @dataclass(frozen=True)
