@@ -11,6 +11,7 @@ from pydantic import WithJsonSchema
 from starlette.concurrency import run_in_threadpool
 
 from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX
+from sdcnet.service.admission import TAKES_SLOT
 from sdcnet.service.decode import CompletionRequest
 from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, input_limits
 from sdcnet.service.encode import MEDIA_TYPES
@@ -160,7 +161,7 @@ FrameForm = Annotated[CompletionRequest, Depends(frame_form)]
         },
         **ERROR_RESPONSES,
     },
-    dependencies=[Depends(strict_form)],
+    dependencies=[TAKES_SLOT, Depends(strict_form)],
 )
 async def complete(
     request: Request,

@@ -10,6 +10,7 @@ from fastapi import APIRouter, Depends, Form, Request
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
+from sdcnet.service.admission import TAKES_SLOT
 from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, TargetsDep, input_limits
 from sdcnet.service.errors import ERROR_RESPONSES
 from sdcnet.service.inference import SERVER_TIMING_HEADER
@@ -47,7 +48,7 @@ POSE_ERRORS: dict[int | str, dict] = {
         },
         **POSE_ERRORS,
     },
-    dependencies=[Depends(strict_form)],
+    dependencies=[TAKES_SLOT, Depends(strict_form)],
 )
 async def pose(
     request: Request,
