@@ -90,5 +90,4 @@ async def infer(
         v2.answer, engine, body, header_length, input_limits(settings), camera
     )
     request.app.state.metrics.observe_phases(answer.timer.seconds)
-    headers = {"Server-Timing": answer.timer.server_timing(), **answer.headers}
-    return SpooledResponse(answer.body, answer.media_type, headers)
+    return answer.response()
