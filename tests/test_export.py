@@ -10,7 +10,7 @@ import torch
 from sdcnet.export import onnx_export
 from sdcnet.export.cli import main as export_main
 from sdcnet.export.cli import parity_frames
-from sdcnet.export.onnx_export import export_onnx, model_metadata, parity_check
+from sdcnet.export.onnx_export import export_onnx, network_metadata_props, parity_check
 from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.training.checkpoint import save_checkpoint
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
@@ -30,7 +30,7 @@ def exported(tmp_path_factory):
     with torch.no_grad():
         model.fsnet.head.bias += 3.0
     path = tmp_path_factory.mktemp("onnx") / "m.onnx"
-    export_onnx(model, path, model_metadata(model, "test", {"MAEI": 0.1}))
+    export_onnx(model, path, network_metadata_props(model, "test", {"MAEI": 0.1}))
     return model, path
 
 
@@ -55,7 +55,7 @@ def test_every_variant_exports_with_parity_at_two_sizes_and_batches(variant, fra
         torch.nn.init.normal_(model.fdcnet.head.weight, std=0.05)
         if model.fsnet is not None:  # and foreground everywhere, so every pixel's depth is
             model.fsnet.head.bias += 6.0
-    path = export_onnx(model, tmp_path / f"{variant}.onnx", model_metadata(model, "test"))
+    path = export_onnx(model, tmp_path / f"{variant}.onnx", network_metadata_props(model, "test"))
     sizes = (256, 512) if variant == "sdcnet" else (256,)  # the shipped design at two sizes
     cases = parity_check(model, path, frames, sizes=sizes, batches=(1, 2))
     assert [(c.size, c.batch) for c in cases] == [(s, b) for s in sizes for b in (1, 2)]

@@ -18,7 +18,7 @@ from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.data.conditions import ROBUSTNESS
-from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, generate, make_sample
 from sdcnet.training.evaluate import (
     Method,
     StoredAnswers,
@@ -437,7 +437,9 @@ def cmd_pose(args: argparse.Namespace) -> int:
         methods["classical fill"] = classical
     entries = read_mesh_folder(args.meshes)
     real_config = GenerateConfig(models=0, views=args.views, seed=args.seed, meshes=entries)
-    real = {k: (build_model(real_config, k), load_target(entry)) for k, entry in enumerate(entries)}
+    real = {
+        k: (build_spacecraft(real_config, k), load_target(entry)) for k, entry in enumerate(entries)
+    }
     stores = {Path(path).name: SampleStore(path) for path in args.sequences}
     out = Path(args.out)
     if args.redraw:
