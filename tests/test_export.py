@@ -11,6 +11,7 @@ from sdcnet.export import onnx_export
 from sdcnet.export.cli import main as export_main
 from sdcnet.export.cli import parity_frames
 from sdcnet.export.onnx_export import export_onnx, network_metadata_props, parity_check
+from sdcnet.export.variants import FLOAT_MODULES, FLOAT_NODES_PREFIXES, to_int8
 from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.training.checkpoint import save_checkpoint
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
@@ -123,3 +124,24 @@ def test_loading_a_bad_model_file_says_why(tmp_path):
         OnnxModel(tmp_path / "junk.onnx")
     with pytest.raises(ModelLoadError, match="not available"):
         OnnxModel(tmp_path / "junk.onnx", provider="TensorrtExecutionProvider")
+
+
+def test_int8_keeps_the_depth_and_mask_heads_in_float(exported, frames, tmp_path):
+    """INT8 picks the layers it keeps in float by name (``FLOAT_MODULES``): a head renamed, or
+    named otherwise by the exporter, would be quantised quietly. The names must be the
+    network's depth and mask heads, and in the quantised graph every convolution of theirs,
+    and only theirs, must keep float weights."""
+    model, path = exported
+    assert [model.get_submodule(name) for name in FLOAT_MODULES] == [
+        model.fdcnet.head,  # the depth residual, scaled to metres
+        model.fsnet.head,  # the mask logits
+    ]
+    target = to_int8(path, tmp_path / "m.int8.onnx", frames[:1], model.config.stride)
+    graph = onnx.load(str(target)).graph
+    dequantized = {n.output[0] for n in graph.node if n.op_type == "DequantizeLinear"}
+    convs = [n for n in graph.node if n.op_type == "Conv"]
+    in_float = {n.name for n in convs if n.input[1] not in dequantized}
+    for prefix in FLOAT_NODES_PREFIXES:
+        assert any(name.startswith(prefix) for name in in_float), f"no float Conv {prefix}*"
+    assert all(name.startswith(FLOAT_NODES_PREFIXES) for name in in_float)
+    assert len(in_float) < len(convs)  # the rest is quantised
