@@ -85,7 +85,9 @@ class TrainConfig:
     fsnet_inputs: str = setting(
         "both", "what FSNet sees: gray, sparse or both", choices=("both", "gray", "sparse")
     )
-    fsnet_epochs: int = setting(30, "epochs of stage 1 (FSNet alone); 0 skips it")
+    fsnet_epochs: int = setting(
+        30, "epochs of stage 1 (FSNet alone); 0 skips it, from --init-weights"
+    )
     epochs: int = setting(50, "epochs of stage 2 (depth; FSNet frozen); 0 skips it")
     batch_size: int = setting(8, "tiles per step")
     tile: int = setting(512, "side of a training tile, pixels")
