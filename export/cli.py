@@ -21,11 +21,11 @@ from sdcnet.export.onnx_export import (
     MIN_MASK_AGREEMENT,
     Frame,
     export_checked,
-    model_metadata,
+    network_metadata_props,
 )
 from sdcnet.export.variants import to_fp16, to_int8
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
 
 def parity_frames(seed: int, count: int = 2) -> list[Frame]:
@@ -33,7 +33,7 @@ def parity_frames(seed: int, count: int = 2) -> list[Frame]:
     config = GenerateConfig(models=count, views=1, seed=seed, split=(count, 0, 0))
     frames = []
     for m in range(count):
-        sample = make_sample(config, build_model(config, m), m, 0, "parity")
+        sample = make_sample(config, build_spacecraft(config, m), m, 0, "parity")
         frames.append((sample.gray, sample.sparse, sample.meta["intrinsics"]["fx"]))
     return frames
 
@@ -86,7 +86,7 @@ def export(args: argparse.Namespace) -> int:
         "train_command": state.get("train_config", {}).get("command", ""),
         "dataset_command": state.get("dataset", {}).get("command", ""),
     }
-    metadata = model_metadata(model, version, metrics, extra)
+    metadata = network_metadata_props(model, version, metrics, extra)
     cases = export_checked(model, args.out, metadata, parity_frames(args.parity_seed))
     print(
         f"{version}: parity, onnxruntime CPU vs PyTorch (bounds: depth <= "

@@ -29,12 +29,13 @@ MIN_MASK_AGREEMENT = 0.9999
 MAX_SIGMA_ERROR = 1e-3  # relative
 
 
-def model_metadata(
+def network_metadata_props(
     model: SDCNet, version: str, metrics: dict | None = None, extra: dict | None = None
 ) -> dict:
-    """The metadata_props written into the file: all the service needs besides the graph,
-    and the architecture (``model_config``) it was exported from."""
-    return runtime.model_metadata(
+    """The metadata_props of network ``model``'s ONNX file: ``sdcnet.runtime.metadata_props``
+    (all the service needs besides the graph) and the architecture (``model_config``) it was
+    exported from."""
+    return runtime.metadata_props(
         version,
         model.config.stride,
         model.config.factor,

@@ -22,8 +22,12 @@ from onnxruntime.transformers.float16 import convert_float_to_float16
 
 from sdcnet.pipeline import working_inputs
 
-#: Nodes left in float by INT8 (ONNX node names of the TorchScript exporter).
-FLOAT_NODES_PREFIXES = ("/fdcnet/head/", "/fsnet/head/")
+#: Modules of ``SDCNet`` that INT8 leaves in float (see the module doc): the depth head and
+#: FSNet's head.
+FLOAT_MODULES = ("fdcnet.head", "fsnet.head")
+#: Their nodes' names in the ONNX graph: the TorchScript exporter names a node after the path
+#: of the module that made it ("/fdcnet/head/Conv").
+FLOAT_NODES_PREFIXES = tuple(f"/{name.replace('.', '/')}/" for name in FLOAT_MODULES)
 
 
 def to_fp16(source: str | Path, target: str | Path) -> Path:
@@ -52,7 +56,8 @@ class RegionReader(CalibrationDataReader):
         }
 
 
-def _float_nodes(model: onnx.ModelProto) -> list[str]:
+def float_nodes(model: onnx.ModelProto) -> list[str]:
+    """Names of the nodes of ``model`` that INT8 leaves in float (``FLOAT_MODULES``')."""
     return [n.name for n in model.graph.node if n.name.startswith(FLOAT_NODES_PREFIXES)]
 
 
@@ -71,7 +76,7 @@ def to_int8(source: str | Path, target: str | Path, frames: Iterator | list, str
             per_channel=True,
             activation_type=QuantType.QUInt8,
             weight_type=QuantType.QInt8,
-            nodes_to_exclude=_float_nodes(onnx.load(str(prepared))),
+            nodes_to_exclude=float_nodes(onnx.load(str(prepared))),
         )
     finally:
         prepared.unlink(missing_ok=True)

@@ -38,7 +38,7 @@ class ModelLoadError(RuntimeError):
     """The model file is missing, unreadable, not ONNX, or not an sdcnet model."""
 
 
-def model_metadata(
+def metadata_props(
     version: str,
     stride: int,
     factor: int = 1,

@@ -3,9 +3,10 @@ of how it ended: admission, deadlines and shedding.
 
 A pure ASGI middleware, so that it can answer before a body is read and keep a request's
 phases apart. Every request: a body above ``max_upload_bytes`` gets 413 (from its
-Content-Length when declared, else as soon as the bytes pass it). The inference routes
-(``POST /complete``, ``POST /v2/models/sdcnet/infer``, ``POST /pose``) then go through four
-phases, each bounded (``docs/service.md``, "Hostile and careless clients"):
+Content-Length when declared, else as soon as the bytes pass it). The inference routes, those
+that declare ``dependencies=[TAKES_SLOT]`` (``POST /complete``, ``POST
+/v2/models/sdcnet/infer``, ``POST /pose``), then go through four phases, each bounded
+(``docs/service.md``, "Hostile and careless clients"):
 
 1. **held**: at most ``max_requests`` inference requests at once, in all the phases below;
    the next gets 503 at once, its body unread;
@@ -33,18 +34,40 @@ from __future__ import annotations
 import asyncio
 import collections
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
+from fastapi import APIRouter, Depends
+from fastapi.routing import APIRoute
+from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from sdcnet.service.deps import MODEL_NAME
-from sdcnet.service.errors import ApiError, error_response, is_v2, route_path
+from sdcnet.service.errors import ApiError, error_response, is_v2
 from sdcnet.service.metrics import ServiceMetrics
 from sdcnet.service.protocol import ABORT
 from sdcnet.service.settings import Settings
 from sdcnet.service.spool import Spool
 
-INFERENCE_PATHS = ("/complete", f"/v2/models/{MODEL_NAME}/infer", "/pose")
+
+async def inference_slot() -> None:
+    """FastAPI dependency that marks a route as an inference one, ``dependencies=[TAKES_SLOT]``
+    on the route (or its router). It does nothing itself: ``Admission``, which runs before
+    routing, finds the marked routes among the application's routers (``slot_routes``) and
+    bounds their requests."""
+
+
+TAKES_SLOT = Depends(inference_slot)
+
+
+def slot_routes(routers: Sequence[APIRouter]) -> tuple[APIRoute, ...]:
+    """The routes of ``routers`` (included in the application without a prefix) that take an
+    inference slot (``TAKES_SLOT``, on the route or its router)."""
+    return tuple(
+        route
+        for router in routers
+        for route in router.routes
+        if isinstance(route, APIRoute)
+        and any(depends.dependency is inference_slot for depends in route.dependencies)
+    )
 
 
 class _ClientGoneError(Exception):
@@ -69,12 +92,20 @@ def declared_length(scope: Scope) -> int:
 
 
 class Admission:
-    """The middleware (see the module doc); ``app.add_middleware(Admission, ...)``."""
+    """The middleware (see the module doc); ``app.add_middleware(Admission, ...)`` with the
+    application's ``routers``."""
 
-    def __init__(self, app: ASGIApp, metrics: ServiceMetrics, settings: Settings):
+    def __init__(
+        self,
+        app: ASGIApp,
+        metrics: ServiceMetrics,
+        settings: Settings,
+        routers: Sequence[APIRouter],
+    ):
         self.app = app
         self.metrics = metrics
         self.settings = settings
+        self.slot_routes = slot_routes(routers)
         # touched on the event loop only: no lock needed
         self.requests = 0  # inference requests held, whatever their phase
         self.in_flight = 0  # of which holding an in-flight place
@@ -115,7 +146,7 @@ class Admission:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        inference = scope["method"] == "POST" and route_path(scope) in INFERENCE_PATHS
+        inference = any(route.matches(scope)[0] is Match.FULL for route in self.slot_routes)
         if declared_length(scope) > self.settings.max_upload_bytes:
             await self._refuse(self._too_large(), inference, scope, receive, send)
         elif not inference:

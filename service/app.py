@@ -135,7 +135,7 @@ def create_app(
     app.state.targets = {}
     app.state.camera = None
     install_error_handlers(app)
-    app.add_middleware(Admission, metrics=service_metrics, settings=settings)
+    app.add_middleware(Admission, metrics=service_metrics, settings=settings, routers=ROUTERS)
     for router in ROUTERS:
         app.include_router(router)
     complete_openapi(app)

@@ -26,10 +26,16 @@ from sdcnet.pointcloud import back_project, statistical_outliers
 from sdcnet.runtime import ModelLoadError, Runtime
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
-from sdcnet.service.encode import encode
+from sdcnet.service.encode import MEDIA_TYPES, encode
 from sdcnet.service.errors import ApiError
-from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, FrameSummary, Timings
-from sdcnet.service.spool import Spool
+from sdcnet.service.schemas import (
+    CameraIntrinsics,
+    CompletionSummary,
+    FrameSummary,
+    ResponseFormat,
+    Timings,
+)
+from sdcnet.service.spool import Spool, SpooledResponse
 
 PHASES = ("decode", "queue", "inference", "encode")
 SELF_TEST_SIZE = 64  # pixels, side of the frame the model completes once at start-up
@@ -242,13 +248,19 @@ def complete_frame(
 
 @dataclass(frozen=True)
 class Answer:
-    """An answer's body (spooled: ``SpooledResponse`` sends it), its extra headers and the
-    time each phase took."""
+    """What every inference route answers: its body (spooled), media type and extra headers,
+    the time each phase took and the phases its ``Server-Timing`` names."""
 
     body: Spool
     timer: PhaseTimer
     headers: dict[str, str] = field(default_factory=dict)
     media_type: str = "application/octet-stream"
+    phases: tuple[str, ...] = PHASES
+
+    def response(self) -> SpooledResponse:
+        """The answer to send, its ``Server-Timing`` first among its headers."""
+        headers = {"Server-Timing": self.timer.server_timing(self.phases), **self.headers}
+        return SpooledResponse(self.body, self.media_type, headers)
 
 
 def answer(
@@ -271,4 +283,7 @@ def answer(
     except BaseException:
         spool.close()
         raise
-    return Answer(spool, timer)
+    headers = {}
+    if req.format is not ResponseFormat.json:
+        headers["Content-Disposition"] = f'attachment; filename="sdcnet.{req.format.value}"'
+    return Answer(spool, timer, headers, MEDIA_TYPES[req.format])

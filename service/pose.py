@@ -23,6 +23,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from fastapi.responses import JSONResponse
 
 from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
@@ -30,10 +31,11 @@ from sdcnet.rigid import Pose, parse_pose
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, InputLimits, decode_form
 from sdcnet.service.errors import ApiError
-from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
+from sdcnet.service.inference import Answer, Engine, PhaseTimer, complete_frame
 from sdcnet.service.pose_schemas import PoseAlternative, PoseResponse, PoseTimings, PoseValue
 from sdcnet.service.schemas import FrameSummary
 from sdcnet.service.settings import Settings
+from sdcnet.service.spool import Spool
 from sdcnet.targets import Target, load_targets
 
 logger = logging.getLogger("sdcnet.service")
@@ -196,9 +198,9 @@ def answer_pose(
     req: PoseRequest,
     limits: InputLimits,
     camera: ServiceCamera | None = None,
-) -> tuple[PoseResponse, PhaseTimer]:
-    """Check, complete (in the ``camera``'s frame), register one request; raises ``ApiError``
-    for bad input."""
+) -> Answer:
+    """Check, complete (in the ``camera``'s frame), register one request, its answer a
+    ``PoseResponse`` as JSON; raises ``ApiError`` for bad input."""
     target = find_target(targets, req.target)
     init = read_init(req.init)
     timer = PhaseTimer()
@@ -217,4 +219,7 @@ def answer_pose(
                 422, exc.code, f"the completed cloud cannot be registered to {target.name}: {exc}"
             ) from exc
     completion = done.frame_summary(engine.model)
-    return pose_response(target, estimate, completion, done.sigma_limit, timer), timer
+    response = pose_response(target, estimate, completion, done.sigma_limit, timer)
+    spool = Spool()
+    spool.write(JSONResponse(response.model_dump()).body)  # Starlette's JSON rendering
+    return Answer(spool, timer, media_type="application/json", phases=POSE_PHASES)

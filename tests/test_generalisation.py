@@ -10,7 +10,7 @@ from sdcnet.camera import Intrinsics
 from sdcnet.pipeline import complete
 from sdcnet.runtime import OnnxModel
 from sdcnet.service.settings import shipped_model_path
-from sdcnet.training.data.generate import GenerateConfig, build_model, model_splits
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, model_splits
 from sdcnet.training.data.lidar import ScanningLidar, scan_lidar
 from sdcnet.training.data.render import PosedModel, render_camera
 from sdcnet.training.data.scene import Scene, random_rotation
@@ -35,7 +35,7 @@ def test_two_cameras_seeing_the_same_scene_give_the_same_mask_within_a_pixel_of_
     1024 px mask, brought to 512 px, is the 512 px mask but within a pixel of the outline."""
     config = GenerateConfig(seed=0)
     test_model = min(m for m, split in model_splits(config).items() if split == "test")
-    spacecraft = build_model(config, test_model)
+    spacecraft = build_spacecraft(config, test_model)
     rng = np.random.default_rng(seed)
     distance = 1.5 * spacecraft.radius_m / math.tan(math.radians(20.0) / 2)
     sun = np.array([0.3, -0.4, -1.0]) / np.linalg.norm([0.3, -0.4, -1.0])

@@ -11,7 +11,7 @@ from sdcnet.rigid import Pose, axis_angle, pose_errors
 from sdcnet.runtime import OnnxModel
 from sdcnet.service.settings import shipped_model_path
 from sdcnet.targets import prepare_target
-from sdcnet.training.data.generate import GenerateConfig, build_model
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft
 from sdcnet.training.evaluate import network
 from sdcnet.training.pose_eval import (
     RAW,
@@ -114,7 +114,7 @@ def test_the_shipped_models_cloud_gives_the_pose_of_a_rendered_frame():
     """End to end as ``sdc-train pose`` runs it: a procedural spacecraft rendered at 1024 x
     1024 by the generator, completed by the shipped model, registered from scratch."""
     config = GenerateConfig(models=1, views=1, seed=3, split=(1, 0, 0))
-    craft = build_model(config, 0)
+    craft = build_spacecraft(config, 0)
     target = prepare_target(craft.name, craft.mesh.vertices, craft.mesh.faces)
     onnx = OnnxModel(shipped_model_path(), threads=2)
     frames = single_frames(config, {0: (craft, target)}, 1, "test")

@@ -39,10 +39,12 @@ from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project, read_ply, statistical_outliers
 from sdcnet.returns import returns_from_dense, scatter_nearest
 from sdcnet.runtime import OnnxModel
+from sdcnet.service.admission import slot_routes
 from sdcnet.service.app import create_app
 from sdcnet.service.camera import ANSWER_FRAME
 from sdcnet.service.deps import get_engine
 from sdcnet.service.inference import Engine
+from sdcnet.service.routes import ROUTERS
 from sdcnet.service.settings import Settings, get_settings
 
 MAX_PIXELS = 1024 * 1024
@@ -528,6 +530,18 @@ def test_metrics_move_with_requests(client):
 
 
 # -- in process only: what dependency overrides reach --------------------------------------
+
+
+def test_the_routes_that_run_the_model_and_only_they_take_an_inference_slot():
+    """``Admission`` bounds the routes that declare ``TAKES_SLOT``; probes, metadata and
+    metrics stay unbounded."""
+    routes = slot_routes(ROUTERS)
+    declared = sorted((method, route.path) for route in routes for method in route.methods)
+    assert declared == [
+        ("POST", "/complete"),
+        ("POST", "/pose"),
+        ("POST", "/v2/models/sdcnet/infer"),
+    ]
 
 
 def test_without_a_model_the_probes_and_requests_say_not_ready(model_path):

@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+from dataclasses import fields
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,9 @@ import torch
 
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.cli import main as train_main
+from sdcnet.training.cli import parser as train_parser
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet
+from sdcnet.training.train import TrainConfig, config_from_preset
 
 
 @pytest.fixture(scope="module")
@@ -204,6 +207,33 @@ def one_line(err: str) -> str:
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
     return lines[0]
+
+
+def test_fit_has_a_flag_of_each_train_config_field_of_its_type(capsys):
+    """``sdc-train fit``'s flags are made from ``TrainConfig``'s fields: each one's name,
+    type and choices; those not given are the preset's."""
+    argv = ["fit", "--data", "d", "--out", "o", "--lr", "5e-4", "--samples-per-epoch", "3"]
+    argv += ["--variant", "fsnet", "--warm-start", "w.pt"]
+    args = train_parser().parse_args(argv)
+    given = {"data": "d", "out": "o", "lr": 5e-4, "samples_per_epoch": 3, "variant": "fsnet"}
+    given["warm_start"] = "w.pt"
+    flags = {f.name for f in fields(TrainConfig)} - {"command"}
+    assert {name: getattr(args, name) for name in flags} == {
+        name: given.get(name) for name in flags
+    }
+    config = config_from_preset(args.preset, **{name: getattr(args, name) for name in flags})
+    assert (config.lr, config.samples_per_epoch, config.epochs) == (5e-4, 3, 16)  # cpu preset
+    for bad in (["--variant", "nope"], ["--epochs", "1.5"]):
+        with pytest.raises(SystemExit):
+            train_parser().parse_args([*argv, *bad])
+    with pytest.raises(SystemExit):  # --data is required: TrainConfig has no default for it
+        train_parser().parse_args(["fit", "--out", "o"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        train_parser().parse_args(["fit", "--help"])
+    shown = " ".join(capsys.readouterr().out.split())
+    assert "--fsnet-inputs {both,gray,sparse} what FSNet sees" in shown
+    assert "--data DATA dataset directory (sdc-data generate)" in shown
 
 
 def test_bad_arguments_give_clear_errors(tmp_path, capsys):

@@ -12,7 +12,7 @@ from sdcnet.training.data.background import sun_in_view
 from sdcnet.training.data.conditions import ANY, ROBUSTNESS, CameraDraw, World, draw_conditions
 from sdcnet.training.data.generate import (
     GenerateConfig,
-    build_model,
+    build_spacecraft,
     frame_conditions,
     generate,
     make_sample,
@@ -57,7 +57,7 @@ def test_any_world_spans_cameras_sizes_sensors_and_lidars():
 
 def test_a_sample_records_every_factor_and_never_puts_the_camera_inside_the_spacecraft():
     config = GenerateConfig(models=3, views=2, size=256, seed=4, world="any")
-    model = build_model(config, 1)
+    model = build_spacecraft(config, 1)
     for view in range(2):
         sample = make_sample(config, model, 1, view, "train")
         meta = json.loads(json.dumps(sample.meta))  # JSON all the way
@@ -80,7 +80,7 @@ def test_returns_lie_on_the_spacecraft_within_the_lidar_noise(kind):
     config = GenerateConfig(models=2, seed=7)
     on, total = 0, 0
     for m in range(2):
-        model = build_model(config, m)
+        model = build_spacecraft(config, m)
         for view in range(3):
             conditions = draw_conditions(small, np.random.default_rng([m, view]))
             scene = sample_scene(
@@ -104,7 +104,7 @@ def test_the_background_never_shows_inside_the_spacecraft():
     """The same spacecraft in front of black sky and in front of a bright Earth: the same
     pixels wherever the blur cannot carry the background in."""
     config = GenerateConfig(models=1, views=1, size=256, seed=2)
-    model = build_model(config, 0)
+    model = build_spacecraft(config, 0)
     K = PAPER_CAMERA.intrinsics().scaled(256, 256)
     scene = sample_scene(
         np.random.default_rng(3), SceneConfig(min_distance_m=60, max_distance_m=60)
@@ -170,7 +170,7 @@ def test_only_splits_renders_the_unseen_models_alone(tmp_path):
 
 def test_a_sun_frame_puts_the_sun_in_or_near_the_view_and_its_glare_on_the_image():
     config = GenerateConfig(models=3, views=8, seed=1, world="sun-moon")
-    model = build_model(config, 0)
+    model = build_spacecraft(config, 0)
     suns = 0
     for view in range(8):
         meta = frame_conditions(config, 0, view)

@@ -6,8 +6,9 @@ import argparse
 import hashlib
 import json
 import sys
-from dataclasses import fields
+from dataclasses import MISSING, Field, fields
 from pathlib import Path
+from typing import get_args, get_type_hints
 
 import cv2
 
@@ -18,7 +19,7 @@ from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.data.conditions import ROBUSTNESS
-from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, generate, make_sample
 from sdcnet.training.evaluate import (
     Method,
     StoredAnswers,
@@ -29,17 +30,38 @@ from sdcnet.training.evaluate import (
     torch_model_fn,
     torch_segmentation_fn,
 )
-from sdcnet.training.model.sdcnet import VARIANTS
 from sdcnet.training.real import evaluate_per_model, gallery
 from sdcnet.training.train import PRESETS, TrainConfig, Trainer, config_from_preset
 from sdcnet.visualize import montage
 
 
+def flag_fields() -> list[Field]:
+    """The fields of ``TrainConfig`` that are flags of ``sdc-train fit``."""
+    return [f for f in fields(TrainConfig) if f.metadata.get("flag", True)]
+
+
+def add_config_flags(parser: argparse.ArgumentParser) -> None:
+    """One flag per field of ``TrainConfig`` (``--batch-size`` for ``batch_size``): its type
+    (``int | None`` gives int), its help and choices from the field's metadata, required when
+    the field has no default. A flag not given is None, so that the preset and ``--config``
+    fill it."""
+    hints = get_type_hints(TrainConfig)
+    for f in flag_fields():
+        kind = next(k for k in (*get_args(hints[f.name]), hints[f.name]) if k is not type(None))
+        parser.add_argument(
+            "--" + f.name.replace("_", "-"),
+            dest=f.name,
+            type=kind,
+            required=f.default is MISSING and f.default_factory is MISSING,
+            **{k: v for k, v in f.metadata.items() if k in ("help", "choices")},
+        )
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     overrides = json.loads(Path(args.config).read_text()) if args.config else {}
-    for f in fields(TrainConfig):
-        value = getattr(args, f.name, None)
-        if value is not None and f.name != "command":
+    for f in flag_fields():
+        value = getattr(args, f.name)
+        if value is not None:
             overrides[f.name] = value
     config = config_from_preset(args.preset, **overrides)
     best = Trainer(config).fit(resume=not args.restart)
@@ -225,46 +247,9 @@ def parser() -> argparse.ArgumentParser:
     add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
     f = sub.add_parser("fit", help="two-stage training; resumes from OUT/last.pt")
-    f.add_argument("--data", required=True, help="dataset directory (sdc-data generate)")
-    f.add_argument("--out", required=True, help="run directory: checkpoints, log.csv, plots")
     f.add_argument("--preset", default="cpu", choices=sorted(PRESETS), help="recipe (default: cpu)")
     f.add_argument("--config", help="JSON file of TrainConfig fields (flags override it)")
-    f.add_argument("--variant", choices=sorted(VARIANTS))
-    f.add_argument("--fsnet-inputs", dest="fsnet_inputs", choices=["both", "gray", "sparse"])
-    for name, kind in (
-        ("fsnet_epochs", int),
-        ("epochs", int),
-        ("batch_size", int),
-        ("tile", int),
-        ("lr", float),
-        ("weight_decay", float),
-        ("gradient_loss", float),
-        ("iou_loss", float),
-        ("sigma_loss", float),
-        ("samples_per_epoch", int),
-        ("train_samples", int),
-        ("val_samples", int),
-        ("workers", int),
-        ("seed", int),
-    ):
-        f.add_argument("--" + name.replace("_", "-"), dest=name, type=kind)
-    f.add_argument(
-        "--init-segmentation",
-        dest="init_segmentation",
-        help="checkpoint whose trained FSNet to reuse: skips stage 1",
-    )
-    f.add_argument(
-        "--init-weights",
-        dest="init_weights",
-        help="fine-tune: start from this checkpoint's weights (same variant), e.g. the shipped "
-        "model on your own spacecraft; --epochs 0 trains the segmentation alone",
-    )
-    f.add_argument(
-        "--warm-start",
-        dest="warm_start",
-        help="start from a checkpoint of an earlier design: every weight whose name and shape "
-        "fit, and the shared input channels of layers that gained some",
-    )
+    add_config_flags(f)
     f.add_argument("--restart", action="store_true", help="ignore OUT/last.pt")
     f.set_defaults(func=cmd_fit)
 
@@ -437,7 +422,9 @@ def cmd_pose(args: argparse.Namespace) -> int:
         methods["classical fill"] = classical
     entries = read_mesh_folder(args.meshes)
     real_config = GenerateConfig(models=0, views=args.views, seed=args.seed, meshes=entries)
-    real = {k: (build_model(real_config, k), load_target(entry)) for k, entry in enumerate(entries)}
+    real = {
+        k: (build_spacecraft(real_config, k), load_target(entry)) for k, entry in enumerate(entries)
+    }
     stores = {Path(path).name: SampleStore(path) for path in args.sequences}
     out = Path(args.out)
     if args.redraw:

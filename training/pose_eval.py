@@ -37,7 +37,7 @@ from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, axis_angle, extrapolate, pose_errors
 from sdcnet.targets import Target, prepare_target
-from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 from sdcnet.training.data.spacecraft import SpacecraftModel
 from sdcnet.training.evaluate import Method
 from sdcnet.visualize import (
@@ -418,7 +418,7 @@ def procedural_models(
     config = GenerateConfig(models=info["models"], seed=info["seed"])
     models = {}
     for model_id in ids:
-        model = build_model(config, model_id)
+        model = build_spacecraft(config, model_id)
         models[model_id] = (
             model,
             prepare_target(model.name, model.mesh.vertices, model.mesh.faces),

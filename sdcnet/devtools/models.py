@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sdcnet.runtime import INPUTS, OUTPUTS, model_metadata
+from sdcnet.runtime import INPUTS, OUTPUTS, metadata_props
 
 TINY_VERSION = "test-tiny"
 RANDOM_VERSION = "test-random"
@@ -79,7 +79,7 @@ def tiny_model(base: Path, stride: int = 64) -> Path:
         helper.make_node("Constant", [], ["tenth"], value_float=0.1),
         helper.make_node("Mul", ["gray", "tenth"], ["sigma"]),
     ]
-    model = graph_model(nodes, metadata=model_metadata(TINY_VERSION, stride))
+    model = graph_model(nodes, metadata=metadata_props(TINY_VERSION, stride))
     onnx.checker.check_model(model, full_check=True)
     base.mkdir(parents=True, exist_ok=True)
     onnx.save(model, path)
@@ -92,7 +92,7 @@ def random_model(base: Path) -> Path:
     the whole crop foreground: a non-empty mask and cloud. Needs the ``train`` extra."""
     import torch
 
-    from sdcnet.export.onnx_export import export_onnx, model_metadata
+    from sdcnet.export.onnx_export import export_onnx, network_metadata_props
     from sdcnet.training.model.sdcnet import SDCNet
 
     path = base / "sdcnet-random.onnx"
@@ -101,5 +101,5 @@ def random_model(base: Path) -> Path:
         model = SDCNet().eval()
         with torch.no_grad():
             model.fsnet.head.bias += 3.0
-        export_onnx(model, path, model_metadata(model, RANDOM_VERSION))
+        export_onnx(model, path, network_metadata_props(model, RANDOM_VERSION))
     return path

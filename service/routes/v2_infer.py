@@ -14,6 +14,7 @@ from starlette.concurrency import run_in_threadpool
 
 from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.service import v2
+from sdcnet.service.admission import TAKES_SLOT
 from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep, input_limits
 from sdcnet.service.errors import V2_ERROR_RESPONSES, ApiError
 from sdcnet.service.inference import SERVER_TIMING_HEADER
@@ -60,6 +61,7 @@ _HEADER_LENGTH_DOC = {
         **V2_ERROR_RESPONSES,
     },
     openapi_extra={"requestBody": _REQUEST_BODY},
+    dependencies=[TAKES_SLOT],
 )
 async def infer(
     request: Request, engine: EngineDep, settings: SettingsDep, camera: CameraDep
@@ -88,5 +90,4 @@ async def infer(
         v2.answer, engine, body, header_length, input_limits(settings), camera
     )
     request.app.state.metrics.observe_phases(answer.timer.seconds)
-    headers = {"Server-Timing": answer.timer.server_timing(), **answer.headers}
-    return SpooledResponse(answer.body, answer.media_type, headers)
+    return answer.response()

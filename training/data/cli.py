@@ -17,7 +17,7 @@ from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.training.data.conditions import WORLDS
-from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, generate, make_sample
 from sdcnet.training.data.preview import preview
 from sdcnet.training.data.scene import SceneConfig
 from sdcnet.training.data.sequence import TRAJECTORIES, SequenceConfig, write_sequences
@@ -92,7 +92,7 @@ def cmd_example(args: argparse.Namespace) -> int:
     config = GenerateConfig(
         models=0, views=1, seed=args.seed, split=(0, 0, 0), scene=scene, meshes=(meshes[args.name],)
     )
-    sample = make_sample(config, build_model(config, 0), 0, 0, "example")
+    sample = make_sample(config, build_spacecraft(config, 0), 0, 0, "example")
     args.out.mkdir(parents=True, exist_ok=True)
     gray, returns = args.out / f"{args.name}.png", args.out / f"{args.name}.returns.csv"
     if not cv2.imwrite(str(gray), sample.gray, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
@@ -120,7 +120,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     )
     times, density, returns = [], [], []
     for m in range(config.models):
-        model = build_model(config, m)
+        model = build_spacecraft(config, m)
         for v in range(config.views):
             t0 = time.perf_counter()
             s = make_sample(config, model, m, v, "bench")
@@ -158,7 +158,7 @@ def sequence_models(args: argparse.Namespace) -> dict[int, tuple[SpacecraftModel
             raise ValueError(f"{args.dataset} has no procedural model in split {args.split!r}")
         step = max(1, len(ids) // args.limit) if args.limit else 1
         for m in ids[::step][: args.limit or None]:
-            models[m] = (build_model(config, m), args.split)
+            models[m] = (build_spacecraft(config, m), args.split)
     if args.meshes:
         for k, entry in enumerate(read_mesh_folder(args.meshes)):
             mesh = load_mesh_file(entry.path, entry.longest_m, entry.scale, seed=args.seed)

@@ -101,7 +101,9 @@ def model_splits(config: GenerateConfig) -> dict[int, str]:
     return splits
 
 
-def build_model(config: GenerateConfig, model_id: int) -> SpacecraftModel:
+def build_spacecraft(config: GenerateConfig, model_id: int) -> SpacecraftModel:
+    """Spacecraft ``model_id`` of the dataset ``config`` describes: procedural below
+    ``config.models``, else ``config.meshes``' file of that index (metres)."""
     if model_id < config.models:
         return procedural_spacecraft(config.seed, model_id)
     entry = config.meshes[model_id - config.models]
@@ -175,7 +177,7 @@ def _generate_one(args: tuple[GenerateConfig, Path, int, int, str]) -> str:
     config, out, model_id, view, split = args
     if model_id not in _worker_cache:
         _worker_cache.clear()  # tasks come grouped by model: keep one
-        _worker_cache[model_id] = build_model(config, model_id)
+        _worker_cache[model_id] = build_spacecraft(config, model_id)
     sample = make_sample(config, _worker_cache[model_id], model_id, view, split)
     write_sample(out / sample.meta["file"], sample)
     return sample.meta["id"]
