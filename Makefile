@@ -131,7 +131,7 @@ reports: $(STAMP)
 		--views 2 --seed 0 --world $$c --meshes $(MESHES) --only-splits test real || exit 1; done
 	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/robustness \
 		--out $(PREVIOUS_ANSWERS)/robustness
-	$(VENV)/bin/sdc-train robustness --onnx models/sdcnet.onnx --out docs/robustness \
+	$(VENV)/bin/sdc-train robustness --onnx models/sdcnet.onnx --views 2 --out docs/robustness \
 		--answers "previous model=$(PREVIOUS_ANSWERS)/robustness"
 	$(MAKE) card
 
