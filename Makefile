@@ -72,93 +72,103 @@ DOCKER_CHECK_ARGS ?=
 docker-check: $(STAMP)
 	bash docker/check.sh $(DOCKER_CHECK_ARGS)
 
-## model: regenerate the dataset, train, evaluate and export the shipped model with its card
-## (about 4 h on 2 idle cores; PRESET=paper on a GPU). The shipped weights come from five runs,
-## each starting from the one before: the first design (sdcnet-v1, cpu preset), its FSNet 16
-## more epochs; then the plane-fit depth path trained on that FSNet (stage 2), and FSNet with
-## the refiner 8 + 8 more epochs with a soft-IOU term on a quarter, then half, of the training
-## frames. The first model is kept in runs/first/ for the side-by-side reports. `make ablation` after it refreshes the card's ablation tables
+## model: regenerate the data, train, evaluate and export the shipped model with its card (about
+## 2 h of training on 2 idle cores, 1 h of data; PRESET=paper on a GPU). The third design
+## (scale-free inputs, a fixed working-pixel budget, pre-fills that follow the returns' spacing,
+## an uncertainty head) is trained on the `mixed` world, warm-started from the second shipped
+## model (git $(PREVIOUS), whose card tells its own five runs on the paper's world), in the three
+## steps the shipped model took: FSNet one epoch; FSNet three more and stage 2 three (the shipped
+## run had a six-epoch schedule and was stopped after three; its best epoch was the first); FSNet
+## fine-tuned three more epochs on the trained FDCNet. Then its sigma is calibrated on val.
 .PHONY: model
 PRESET ?= cpu
-RUN ?= runs/sdcnet
-FIRST ?= runs/first/sdcnet.pt
+PREVIOUS ?= e6a386e
+RUN ?= runs/v3
+FIT := $(VENV)/bin/sdc-train fit --data data/mixed --preset $(PRESET) --iou-loss 1 --workers 2 \
+	--val-samples 40
 model: $(STAMP)
-	$(VENV)/bin/sdc-data generate --out data/paper --models 126 --views 64 --size 1024 --seed 0
-	$(VENV)/bin/sdc-train fit --data data/paper --out $(RUN) --preset $(PRESET) --variant sdcnet-v1
-	$(VENV)/bin/sdc-train fit --data data/paper --out $(RUN)-ft --preset $(PRESET) \
-		--init-weights $(RUN)/best.pt --fsnet-epochs 16 --epochs 0 --lr 5e-4 --seed 1
-	mkdir -p $(dir $(FIRST))
-	$(VENV)/bin/sdc-train ship --checkpoint $(RUN)-ft/best_stage1.pt --out $(FIRST)
-	$(VENV)/bin/sdc-export --checkpoint $(FIRST) --out $(FIRST:.pt=.onnx)
-	$(VENV)/bin/sdc-train fit --data data/paper --out runs/v2 --preset $(PRESET) --variant sdcnet \
-		--init-segmentation $(FIRST)
-	$(VENV)/bin/sdc-train fit --data data/paper --out runs/v2-ft --preset $(PRESET) \
-		--init-weights runs/v2/best.pt --fsnet-epochs 8 --epochs 0 --lr 5e-4 --seed 1 --iou-loss 1 \
-		--train-samples 1584
-	$(VENV)/bin/sdc-train fit --data data/paper --out runs/v2-ft2 --preset $(PRESET) \
-		--init-weights runs/v2-ft/best_stage1.pt --fsnet-epochs 8 --epochs 0 --lr 2.5e-4 --seed 2 \
-		--iou-loss 1 --train-samples 3168
-	$(VENV)/bin/sdc-train ship --checkpoint runs/v2-ft2/best_stage1.pt --out models/sdcnet.pt
+	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
+	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
+	$(FIT) --out $(RUN) --warm-start runs/previous/sdcnet.pt --fsnet-epochs 1 --epochs 0 --lr 1e-3 \
+		--seed 0
+	$(FIT) --out $(RUN)b --init-weights $(RUN)/last.pt --fsnet-epochs 3 --epochs 3 --lr 7e-4 --seed 1
+	$(FIT) --out $(RUN)c --init-weights $(RUN)b/best.pt --fsnet-epochs 3 --epochs 0 --lr 5e-4 --seed 2
+	$(VENV)/bin/sdc-train ship --checkpoint $(RUN)c/best_stage1.pt --out $(RUN)c/shipped.pt
+	$(VENV)/bin/sdc-train calibrate --checkpoint $(RUN)c/shipped.pt --data data/mixed --split val \
+		--out models/sdcnet.pt
 	$(MAKE) reports
 
-## reports: evaluate the shipped checkpoint beside the first model and the classical fill (test
-## split and real meshes), export it with its parity check, refresh the gallery and the card
+## reports: evaluate the shipped checkpoint beside the previous model (git $(PREVIOUS), run by its
+## own version of the pipeline: benchmarks/previous_model.py) and the classical fill on the
+## paper's test split, the real meshes and every condition of the robustness suite; export it
+## with its parity check; refresh the galleries and the card
 .PHONY: reports
+PREVIOUS_ANSWERS := runs/previous/answers
+MESHES ?= ../shared/real-meshes
+CONDITIONS := paper earth sun-moon wide-multibeam flash docking narrow-far any
 reports: $(STAMP)
+	$(VENV)/bin/sdc-data generate --out data/paper --models 126 --views 64 --size 1024 --seed 0 \
+		--only-splits test
 	$(VENV)/bin/sdc-train ship --checkpoint models/sdcnet.pt --out runs/ablation/plane-alone.pt \
 		--zero fdcnet.head
-	$(VENV)/bin/sdc-train ship --checkpoint models/sdcnet.pt --out runs/ablation/no-refiner.pt \
-		--zero refiner.correction
-	$(VENV)/bin/sdc-train evaluate --checkpoint models/sdcnet.pt runs/ablation/plane-alone.pt $(FIRST) \
-		--names sdcnet "its plane fit alone" "first model" \
+	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/paper --split test \
+		--limit 288 --out $(PREVIOUS_ANSWERS)/paper
+	$(VENV)/bin/sdc-train evaluate --checkpoint models/sdcnet.pt runs/ablation/plane-alone.pt \
+		--names sdcnet "its plane fit alone" --answers "previous model=$(PREVIOUS_ANSWERS)/paper" \
 		--data data/paper --split test --floor --limit 288 --out models/eval_test.json \
-		--title "Synthetic test split (18 unseen models, every fourth frame)"
+		--title "Synthetic test split, the paper's camera and LIDAR (18 unseen models, every fourth frame)"
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out models/sdcnet.onnx \
 		--metrics models/eval_test.json
 	$(VENV)/bin/sdc-train evaluate --onnx models/sdcnet.onnx --data data/paper --split test --limit 288 \
 		--out models/eval_test_onnx.json \
 		--title "Synthetic test split through onnxruntime (the service's numbers, every fourth frame)"
-	$(VENV)/bin/sdc-train evaluate --segmentation-only --data data/paper --split test --limit 288 \
-		--checkpoint models/sdcnet.pt runs/ablation/no-refiner.pt runs/v2/best.pt \
-		--names sdcnet "its refiner off" "before the FSNet fine-tunes" --out models/eval_mask_ablation.json \
-		--title "Mask ablation, test split (every fourth frame): the refiner and the FSNet fine-tunes"
-	$(VENV)/bin/sdc-train real --checkpoint models/sdcnet.pt $(FIRST) --names sdcnet "first model" \
-		--onnx models/sdcnet.onnx --floor --out docs/real
+	$(VENV)/bin/sdc-data generate --out data/real --models 0 --views 8 --seed 0 --split 0,0,0 \
+		--meshes $(MESHES)
+	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/real --out $(PREVIOUS_ANSWERS)/real
+	$(VENV)/bin/sdc-train real --onnx models/sdcnet.onnx --floor --out docs/real \
+		--answers "previous model=$(PREVIOUS_ANSWERS)/real"
+	for c in $(CONDITIONS); do $(VENV)/bin/sdc-data generate --out data/robustness/$$c --models 126 \
+		--views 2 --seed 0 --world $$c --meshes $(MESHES) --only-splits test real || exit 1; done
+	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/robustness \
+		--out $(PREVIOUS_ANSWERS)/robustness
+	$(VENV)/bin/sdc-train robustness --onnx models/sdcnet.onnx --views 2 --out docs/robustness \
+		--answers "previous model=$(PREVIOUS_ANSWERS)/robustness"
 	$(MAKE) card
 
-## bench: regenerate the benchmark tables and plots in docs/benchmarks/ (needs data/paper;
-## FP16/INT8 variants are made in runs/variants, they are not shipped)
+## bench: regenerate the benchmark tables and plots in docs/benchmarks/ (needs data/paper and
+## data/robustness from `make reports`; FP16/INT8 variants are made in runs/variants, not shipped)
 .PHONY: bench
 bench: $(STAMP)
+	$(PY) -m benchmarks.pipeline_latency --onnx models/sdcnet.onnx --data data/robustness \
+		--previous $(PREVIOUS)
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out runs/variants/sdcnet.onnx \
-		--variants fp16 int8 --calibration-data data/paper
-	$(PY) -m benchmarks.pipeline_latency --onnx models/sdcnet.onnx $(FIRST:.pt=.onnx)
+		--variants fp16 int8 --calibration-data data/mixed
 	$(PY) -m benchmarks.model_latency --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx
 	$(PY) -m benchmarks.accuracy_speed --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx \
 		--data data/paper --split test --limit 192
 	$(PY) -m benchmarks.service_latency --requests 60
 	$(PY) -m benchmarks.load --requests 2000 --concurrency 32
 
-## ablation: the paper's Tables 4 and 5 with the cpu recipe (each Table 5 run took ~21 min on 2 cores; needs
-## $(RUN) from `make model`). Table 5: every fusion variant trains stage 2 on $(RUN)'s frozen
-## 8-epoch FSNet (the baseline has none), evaluated beside $(RUN)'s own SDCNet. Table 4: FSNet
-## on gray or sparse alone, stage 1 only, against $(RUN)'s stage 1 on both.
+## ablation: the paper's Tables 4 and 5 on the mixed world with the cpu recipe (needs $(RUN)c from
+## `make model`). Table 5: every fusion variant trains stage 2 on $(RUN)c's frozen FSNet (the
+## baseline has none), evaluated beside $(RUN)c's own SDCNet. Table 4: FSNet on gray or sparse
+## alone, stage 1 only, against $(RUN)c's stage 1 on both.
 .PHONY: ablation
 FUSIONS := fsnet fsnet+cca fsnet+sa
 ablation: $(STAMP)
-	for v in $(FUSIONS); do $(VENV)/bin/sdc-train fit --data data/paper --out runs/ablation-$$v \
-		--preset $(PRESET) --variant $$v --init-segmentation $(RUN)/best_stage1.pt || exit 1; done
-	$(VENV)/bin/sdc-train fit --data data/paper --out runs/ablation-baseline --preset $(PRESET) \
+	for v in $(FUSIONS); do $(VENV)/bin/sdc-train fit --data data/mixed --out runs/ablation-$$v \
+		--preset $(PRESET) --variant $$v --init-segmentation $(RUN)c/best_stage1.pt || exit 1; done
+	$(VENV)/bin/sdc-train fit --data data/mixed --out runs/ablation-baseline --preset $(PRESET) \
 		--variant baseline
-	for i in gray sparse; do $(VENV)/bin/sdc-train fit --data data/paper --out runs/ablation-fsnet-$$i \
+	for i in gray sparse; do $(VENV)/bin/sdc-train fit --data data/mixed --out runs/ablation-fsnet-$$i \
 		--preset $(PRESET) --fsnet-inputs $$i --epochs 0 || exit 1; done
 	$(VENV)/bin/sdc-train evaluate --data data/paper --split test --limit 288 --out models/eval_ablation.json \
-		--checkpoint runs/ablation-baseline/best.pt $(foreach v,$(FUSIONS),runs/ablation-$(v)/best.pt) $(RUN)/best.pt \
+		--checkpoint runs/ablation-baseline/best.pt $(foreach v,$(FUSIONS),runs/ablation-$(v)/best.pt) $(RUN)c/shipped.pt \
 		--names "(a) baseline: guided conv., no FSNet" "(b) + FSNet" "(c) + FSNet + CCA" "(d) + FSNet + SA" "(e) + FSNet + CCA + SA = SDCNet" \
 		--title "Table 5 ablation, test split: each component added to the GuideNet-style baseline (cpu recipe, one seed; every fourth test frame)"
 	$(VENV)/bin/sdc-train evaluate --data data/paper --split test --segmentation-only \
 		--out models/eval_fsnet_inputs.json \
-		--checkpoint runs/ablation-fsnet-gray/best_stage1.pt runs/ablation-fsnet-sparse/best_stage1.pt $(RUN)/best_stage1.pt \
+		--checkpoint runs/ablation-fsnet-gray/best_stage1.pt runs/ablation-fsnet-sparse/best_stage1.pt $(RUN)c/best_stage1.pt \
 		--names "FSNet on gray" "FSNet on sparse depth" "FSNet on both" \
 		--title "Table 4 ablation, test split: FSNet's inputs (8 epochs of stage 1 each, mask metrics only)"
 	$(MAKE) card
@@ -167,7 +177,7 @@ ablation: $(STAMP)
 .PHONY: card
 card: $(STAMP)
 	$(VENV)/bin/sdc-train card --checkpoint models/sdcnet.pt --onnx models/sdcnet.onnx \
-		--report models/eval_test.json models/eval_test_onnx.json models/eval_mask_ablation.json \
-		models/eval_ablation.json \
-		$(wildcard models/eval_fsnet_inputs.json) \
-		docs/real/real_spacecraft.json --notes models/NOTES.md --out models/MODEL_CARD.md
+		--report models/eval_test.json models/eval_test_onnx.json \
+		$(wildcard models/eval_ablation.json models/eval_fsnet_inputs.json) \
+		docs/real/real_spacecraft.json --robustness docs/robustness/robustness.json \
+		--notes models/NOTES.md --out models/MODEL_CARD.md

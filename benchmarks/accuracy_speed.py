@@ -26,23 +26,22 @@ import torch
 from benchmarks.common import DOCS, cpu_description, onnx_variants, write_markdown
 from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import MetricTable, frame_metrics, markdown_table
-from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.evaluate import ClassicalFill, torch_model_fn
+from sdcnet.training.evaluate import Method, classical, network, torch_model_fn
 
 
-def measure(fn, stride: int, store: SampleStore, records: list[dict]) -> tuple[MetricTable, float]:
+def measure(method: Method, store: SampleStore, records: list[dict]) -> tuple[MetricTable, float]:
     """Metrics over ``records`` and the median pipeline latency (ms) per frame."""
     table, times = MetricTable(), []
     first = store.load(records[0])
     for _ in range(2):  # warm-up
-        complete(fn, first.gray, first.sparse, stride=stride)
+        method(first)
     for record in records:
         sample = store.load(record)
         start = time.perf_counter()
-        result = complete(fn, sample.gray, sample.sparse, stride=stride)
+        depth, mask, _ = method(sample)
         times.append((time.perf_counter() - start) * 1000)
-        table.add(frame_metrics(result.depth, result.mask, sample.depth))
+        table.add(frame_metrics(depth, mask, sample.depth))
     return table, statistics.median(times)
 
 
@@ -64,14 +63,13 @@ def main(argv: list[str] | None = None) -> int:
     store = SampleStore(args.data)
     records = store.split(args.split, args.limit)
     model, _ = load_checkpoint(args.checkpoint)
-    methods = {"PyTorch eager FP32": (torch_model_fn(model), model.config.stride)}
+    methods = {"PyTorch eager FP32": network(torch_model_fn(model), model.config.stride)}
     for name, runner in onnx_variants(args.onnx, args.threads).items():
-        methods[name] = (runner.run, runner.stride)
-    fill = ClassicalFill()
-    methods["classical fill (floor)"] = (torch_model_fn(fill), fill.stride)
+        methods[name] = network(runner.run, runner.stride, runner.info.work_pixels)
+    methods["classical fill (floor)"] = classical
     results, latency = {}, {}
-    for name, (fn, stride) in methods.items():
-        table, ms = measure(fn, stride, store, records)
+    for name, method in methods.items():
+        table, ms = measure(method, store, records)
         results[name], latency[name] = table.mean(), ms
         print(f"{name}: {ms:.1f} ms/frame, {results[name]}", flush=True)
     rows = [

@@ -24,9 +24,8 @@ from tqdm import tqdm
 from benchmarks.common import DOCS, write_markdown
 from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import frame_metrics, mask_error_bands
-from sdcnet.pipeline import complete
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.evaluate import torch_segmentation_fn
+from sdcnet.training.evaluate import network, torch_segmentation_fn
 
 SIZE_BINS_PX = (0, 20_000, 60_000, 200_000, 1024 * 1024 + 1)  # true foreground pixels
 COLUMNS = ("IOU", "miss_edge", "fp_edge", "fn_edge", "miss_near", "miss_far", "IOU_off_edge")
@@ -35,16 +34,16 @@ COLUMNS = ("IOU", "miss_edge", "fp_edge", "fn_edge", "miss_near", "miss_far", "I
 def frame_rows(checkpoint: Path, store: SampleStore, records: list[dict]) -> list[dict]:
     """Per frame: foreground size, IOU and the error bands of the checkpoint's mask."""
     model, _ = load_checkpoint(checkpoint)
-    fn = torch_segmentation_fn(model)
+    method = network(torch_segmentation_fn(model), model.config.stride)
     rows = []
     for record in tqdm(records, desc=checkpoint.name, unit="img", leave=False):
         sample = store.load(record)
-        result = complete(fn, sample.gray, sample.sparse, stride=model.config.stride)
+        depth, mask, _ = method(sample)
         rows.append(
             {
                 "foreground_px": int((sample.depth > 0).sum()),
-                "IOU": frame_metrics(result.depth, result.mask, sample.depth)["IOU"],
-                **mask_error_bands(result.mask, sample.depth),
+                "IOU": frame_metrics(depth, mask, sample.depth)["IOU"],
+                **mask_error_bands(mask, sample.depth),
             }
         )
     return rows

@@ -31,19 +31,22 @@ from sdcnet.export.cli import parity_frames
 from sdcnet.training.checkpoint import load_checkpoint
 
 
-def frame_inputs(size: int, seed: int = 11) -> tuple[np.ndarray, np.ndarray]:
-    """A real rendered frame, centre-cropped to size x size, as (1, 1, H, W) float32 arrays."""
-    gray, sparse = parity_frames(seed, count=1)[0]
+def frame_inputs(size: int, seed: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A real rendered frame, centre-cropped to size x size, as the network's inputs: (1, 1,
+    H, W) float32 gray and sparse, (1, 1, 1, 1) focal length."""
+    gray, sparse, fx = parity_frames(seed, count=1)[0]
     y = (gray.shape[0] - size) // 2
     crop = (slice(y, y + size), slice(y, y + size))
-    return (gray[crop].astype(np.float32) / 255)[None, None], sparse[crop].astype(np.float32)[
-        None, None
-    ]
+    return (
+        (gray[crop].astype(np.float32) / 255)[None, None],
+        sparse[crop].astype(np.float32)[None, None],
+        np.full((1, 1, 1, 1), fx, np.float32),
+    )
 
 
-def gflops(model: torch.nn.Module, gray: np.ndarray, sparse: np.ndarray) -> float:
+def gflops(model: torch.nn.Module, inputs: tuple[np.ndarray, ...]) -> float:
     with torch.no_grad(), FlopCounterMode(display=False) as counter:
-        model(torch.from_numpy(gray), torch.from_numpy(sparse))
+        model(*map(torch.from_numpy, inputs))
     return counter.get_total_flops() / 1e9
 
 
@@ -65,19 +68,19 @@ def main(argv: list[str] | None = None) -> int:
     peak, peak_note = peak_gflops(args.threads)
     rows, results = [], {}
     for size in (512, 1024):
-        gray, sparse = frame_inputs(size)
-        flops = gflops(model, gray, sparse)
+        inputs = frame_inputs(size)
+        flops = gflops(model, inputs)
         for name, runner in runners.items():
             if runner is None:
-                g, s = torch.from_numpy(gray), torch.from_numpy(sparse)
+                tensors = tuple(map(torch.from_numpy, inputs))
 
-                def call(g=g, s=s):
+                def call(tensors=tensors):
                     with torch.no_grad():
-                        model(g, s)
+                        model(*tensors)
             else:
 
-                def call(runner=runner, gray=gray, sparse=sparse):
-                    runner.run(gray, sparse)
+                def call(runner=runner, inputs=inputs):
+                    runner.run(*inputs)
 
             t = time_calls(call, args.repeats)
             achieved = flops / (t["median_ms"] / 1000)

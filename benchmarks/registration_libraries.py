@@ -34,7 +34,7 @@ from sdcnet.registration import TargetModel, estimate_pose
 from sdcnet.rigid import Pose, axis_angle, pose_errors
 from sdcnet.runtime import OnnxModel
 from sdcnet.targets import load_target
-from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
 REAL_MESHES = Path("../shared/real-meshes")  # as sdc-train real: from the repository root
 SHIPPED = Path(__file__).resolve().parents[1] / "models" / "sdcnet.onnx"
@@ -52,11 +52,13 @@ def frames(meshes: Path, views: int, model_path: Path):
     onnx = OnnxModel(model_path, threads=1)
     for m, entry in enumerate(entries):
         target = load_target(entry)
-        spacecraft = build_model(config, m)
+        spacecraft = build_spacecraft(config, m)
         for v in range(views):
             sample = make_sample(config, spacecraft, m, v, "real")
             K = Intrinsics(**sample.meta["intrinsics"])
-            result = complete(onnx.run, sample.gray, sample.sparse, onnx.stride)
+            result = complete(
+                onnx.run, sample.gray, sample.sparse, K.fx, onnx.stride, onnx.info.work_pixels
+            )
             truth = Pose(
                 *spacecraft.file_frame_pose(
                     np.array(sample.meta["rotation"]), np.array(sample.meta["translation_m"])

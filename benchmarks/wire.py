@@ -123,11 +123,11 @@ def test_split_frame(data: Path) -> tuple[Sample, str]:
 def real_mesh_frame(folder: Path, mesh: str) -> tuple[Sample, str]:
     """View 0 of ``mesh`` (a file of the mesh ``folder``) rendered by the generator."""
     from sdcnet.meshes import read_mesh_folder
-    from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+    from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
     entry = next(e for e in read_mesh_folder(folder) if e.path.name == mesh)
     config = GenerateConfig(models=0, views=1, seed=0, meshes=(entry,), split=(0, 0, 0))
-    sample = make_sample(config, build_model(config, 0), 0, 0, "real")
+    sample = make_sample(config, build_spacecraft(config, 0), 0, 0, "real")
     return sample, f"real mesh `{mesh}` at {sample.meta['distance_m']:.0f} m (seed 0, view 0)"
 
 

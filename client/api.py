@@ -15,7 +15,6 @@ answer raises ``ServiceError`` with the service's code and message.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import random
@@ -30,6 +29,9 @@ import numpy as np
 
 from sdcnet.client import form, protocol
 from sdcnet.client.transport import TRANSPORT_ERRORS, ConnectTimeoutError, Reply, Transport
+from sdcnet.formats import FormatError, npy
+from sdcnet.formats.sparse import depth_from_png16, sparse_format
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.pipeline import to_gray
 from sdcnet.returns import ReturnsError, check_returns, parse_returns_csv, returns_from_dense
 from sdcnet.rigid import Pose, parse_pose
@@ -43,7 +45,8 @@ Source = str | Path | bytes | np.ndarray
 def _given_intrinsics(
     fx: float | None, fy: float | None, cx: float | None, cy: float | None
 ) -> dict[str, float]:
-    """The intrinsics the caller gave (pixels); those left out are the model's, on the server."""
+    """The intrinsics the caller gave (pixels); those left out are the service's defaults (its
+    camera's, ``sdc-serve --camera``, else the model's)."""
     given = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
     return {k: float(v) for k, v in given.items() if v is not None}
 
@@ -77,6 +80,7 @@ class Completion:
     depth: np.ndarray  # float32 (H, W), camera-frame Z in metres, 0 outside the mask
     mask: np.ndarray  # bool (H, W), True = spacecraft
     points: np.ndarray  # float32 (N, 3), camera frame (x right, y down, z forward), metres
+    sigma: np.ndarray  # float32 (H, W), the depth's 1-sigma uncertainty, metres, 0 off the mask
     meta: dict[str, Any] = field(default_factory=dict)  # the service's summary (meta.json)
     latency_s: float = 0.0  # round trip, seconds, retries included
 
@@ -97,7 +101,7 @@ class Completion:
 @dataclass
 class PoseAnswer:
     """One ``POST /pose`` answer: the pose (p_camera = R p_target + t, metres) and the rest of
-    the service's JSON (fitness, ambiguity, alternatives, the completion's summary...)."""
+    the service's JSON (verdict, fitness, ambiguity, alternatives, the completion's summary...)."""
 
     pose: Pose
     answer: dict[str, Any]
@@ -106,6 +110,16 @@ class PoseAnswer:
     @property
     def ambiguous(self) -> bool:
         return bool(self.answer.get("ambiguous"))
+
+    @property
+    def verdict(self) -> str:
+        """The verdict: "reliable", "ambiguous" or "unreliable" (see ``reasons``)."""
+        return str(self.answer.get("verdict"))
+
+    @property
+    def reasons(self) -> list[str]:
+        """Why the answer is not reliable: codes such as poor_fit, symmetric_twins, left_init."""
+        return list(self.answer.get("reasons", []))
 
     @property
     def alternatives(self) -> list[Pose]:
@@ -129,10 +143,6 @@ def read_file(path: str | Path, what: str = "input") -> bytes:
         raise InputError(f"cannot read {what} file {path}: {exc.strerror or exc}") from None
 
 
-NPY_MAGIC = b"\x93NUMPY"
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
 def gray_array(gray: Source) -> np.ndarray:
     """The gray image as uint8/uint16 (H, W): the array itself, or an image file (PNG, TIFF,
     JPEG, BMP; path or bytes) decoded as the service decodes it, colour converted to gray."""
@@ -150,28 +160,28 @@ def gray_array(gray: Source) -> np.ndarray:
     return to_gray(image)
 
 
-def _load_npy(data: bytes) -> np.ndarray:
-    try:
-        return np.load(io.BytesIO(data), allow_pickle=False)
-    except (ValueError, EOFError, OSError) as exc:
-        raise InputError(f"cannot read the sparse .npy: {exc}") from None
-
-
 def _sparse_array(data: bytes, depth_scale: float | None, label: str) -> np.ndarray:
-    """A dense map or a returns list from file bytes: .npy, 16-bit PNG (times ``depth_scale``
-    metres per unit) or CSV (``row,col,z_m``; its errors start with ``label``)."""
-    if data.startswith(NPY_MAGIC):
-        return _load_npy(data)
-    if data.startswith(PNG_SIGNATURE):
-        if depth_scale is None:
-            raise InputError("a 16-bit PNG sparse map needs depth_scale (metres per unit)")
-        units = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-        if units is None or units.dtype != np.uint16 or units.ndim != 2:
-            raise InputError("a sparse PNG must be single-channel 16-bit")
-        return units.astype(np.float32) * np.float32(depth_scale)
+    """A dense map or a returns list from file bytes (``sdcnet.formats.sparse``): .npy,
+    16-bit PNG (times ``depth_scale`` metres per unit) or CSV (``row,col,z_m``; its errors
+    start with ``label``)."""
+    kind = sparse_format(data)
     try:
-        return parse_returns_csv(data.decode("utf-8"), label)
-    except UnicodeDecodeError:
+        if kind == "npy":
+            return npy.read_floats(data, "sparse")
+        if kind == "png":
+            if depth_scale is None:
+                raise InputError("a 16-bit PNG sparse map needs depth_scale (metres per unit)")
+            units = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            if units is None:
+                raise InputError("cannot decode the sparse PNG (truncated or corrupt)")
+            return depth_from_png16(units, depth_scale)
+    except FormatError as exc:
+        raise InputError(str(exc)) from None
+    try:
+        return parse_returns_csv(data, label)
+    except ReturnsError as exc:
+        if exc.code != "not_text":
+            raise
         raise InputError(
             "sparse must be a .npy file, a 16-bit PNG (with depth_scale) or a CSV of returns "
             "(header row,col,z_m)"
@@ -327,6 +337,7 @@ class Client:
         cy: float | None = None,
         depth_scale: float | None = None,
         outlier_removal: bool = False,
+        max_sigma: float | None = None,
         float16_depth: bool = False,
     ) -> Completion:
         """Complete one frame.
@@ -336,24 +347,30 @@ class Client:
         return) as an array, a ``.npy`` file or a 16-bit PNG with ``depth_scale`` (metres per
         unit), or a list as an (N, 3) array or ``.npy`` or a CSV file (``row,col,z_m``); or
         ``returns``, an (N, 3) array (row, column, Z metres). Intrinsics in pixels; those not
-        given are the model's, scaled to the image size. ``float16_depth`` halves the depth's
+        given are the service's camera's (``sdc-serve --camera``), else the model's, scaled to
+        the image size. ``max_sigma`` (metres) leaves the points whose sigma is above it out
+        of the cloud (depth, mask and sigma stay whole). ``float16_depth`` halves the depth's
         bytes at a precision of 8 mm (``sdcnet.compact``); by default the depth is exact.
         """
         image = gray_array(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)
         parameters: dict[str, Any] = _given_intrinsics(fx, fy, cx, cy)
         parameters["outlier_removal"] = outlier_removal
+        if max_sigma is not None:
+            parameters["max_sigma"] = float(max_sigma)
         body, headers = protocol.request_body(image, listed, parameters, float16_depth)
         start = time.perf_counter()
         response = self._request("POST", protocol.PATH, content=body, headers=headers)
         latency = time.perf_counter() - start
         try:
             answer = protocol.read_answer(
-                response.content, response.headers.get(protocol.HEADER_LENGTH), image.shape
+                response.content, response.headers.get(HEADER_LENGTH), image.shape
             )
         except protocol.AnswerError as exc:
             raise ClientError(f"unexpected answer from {self.url}{protocol.PATH}: {exc}") from exc
-        return Completion(answer.depth, answer.mask, answer.points, answer.meta, latency)
+        return Completion(
+            answer.depth, answer.mask, answer.points, answer.sigma, answer.meta, latency
+        )
 
     def pose(
         self,
@@ -369,15 +386,20 @@ class Client:
         cy: float | None = None,
         depth_scale: float | None = None,
         outlier_removal: bool = False,
+        max_sigma: float | None = None,
     ) -> PoseAnswer:
         """The pose of the known ``target`` in one frame (``POST /pose``): from scratch, or
         refined from ``init`` (a previous answer's ``pose``, a ``Pose`` or its JSON dict) to
         track. The frame's inputs as for ``complete`` (``sparse=None`` with ``returns``); the
-        returns travel as a list, the gray image as its file (a PNG of an array)."""
+        returns travel as a list, the gray image as its file (a PNG of an array). The points
+        registered are those of sigma up to ``max_sigma`` (metres), else up to the frame's
+        90th percentile of sigma (the service's choice)."""
         image, gray_file = _gray_file(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)
         fields = {k: repr(v) for k, v in _given_intrinsics(fx, fy, cx, cy).items()}
         fields["outlier_removal"] = "true" if outlier_removal else "false"
+        if max_sigma is not None:
+            fields["max_sigma"] = repr(float(max_sigma))
         fields["target"] = target
         if init is not None:
             fields["init"] = json.dumps(init.as_dict() if isinstance(init, Pose) else init)

@@ -1,10 +1,12 @@
 """``sdc-client``: talk to an sdcnet service from the command line.
 
     sdc-client infer GRAY SPARSE [--out DIR] [--fx F --fy F --cx C --cy C] [--depth-scale S]
-                                 [--float16-depth]
+                                 [--max-sigma M] [--float16-depth]
         SPARSE: a .npy (metres), a 16-bit PNG (--depth-scale) or a row,col,z_m returns CSV
     sdc-client batch DIR_OR_MANIFEST --out DIR [--concurrency N] [--split test]
     sdc-client pose GRAY SPARSE --target NAME [--init POSE_JSON] [--out DIR] [intrinsics...]
+    sdc-client track DIR_OR_MANIFEST --target NAME [--out DIR] [--split test]
+        the frames in order, each from the motion so far (sdcnet.client.tracking)
     sdc-client health
     sdc-client model
 
@@ -32,7 +34,8 @@ from sdcnet.client.api import (
 )
 from sdcnet.client.batch import find_pairs, run_batch
 from sdcnet.client.outputs import gray_for_display, summary, write_outputs
-from sdcnet.client.pose_outputs import pose_summary, read_init, write_pose_outputs
+from sdcnet.client.pose_outputs import pose_summary, read_init, track_line, write_pose_outputs
+from sdcnet.client.tracking import Tracker
 
 EXIT_OK, EXIT_FAILED_PAIRS, EXIT_INPUT, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2, 3, 4
 
@@ -54,13 +57,21 @@ def _frame_options() -> argparse.ArgumentParser:
     frame = argparse.ArgumentParser(add_help=False)
     for name in ("fx", "fy", "cx", "cy"):
         frame.add_argument(
-            f"--{name}", type=float, help="intrinsics, pixels (default: the model's, scaled)"
+            f"--{name}",
+            type=float,
+            help="intrinsics, pixels (default: the service's camera's, else the model's, scaled)",
         )
     frame.add_argument(
         "--depth-scale", type=float, help="metres per unit of a 16-bit PNG sparse map"
     )
     frame.add_argument(
         "--outlier-removal", action="store_true", help="statistical outlier removal on points"
+    )
+    frame.add_argument(
+        "--max-sigma",
+        type=float,
+        help="metres: leave the points whose depth's 1-sigma uncertainty is above it out of "
+        "the cloud",
     )
     return frame
 
@@ -117,13 +128,29 @@ def parser() -> argparse.ArgumentParser:
         "--init", help="to track: a previous pose as JSON, or a pose.json this command wrote"
     )
     pose.add_argument("--out", type=Path, default=Path("sdcnet-pose"), help="output folder")
+    track = sub.add_parser(
+        "track",
+        parents=[common, frame],
+        help="a known target's pose over a sequence, each frame's init from the motion so far",
+    )
+    track.add_argument(
+        "source",
+        type=Path,
+        help="the frames in time order: a folder of pairs (by name), a JSON-lines manifest or "
+        "a dataset, as for batch",
+    )
+    track.add_argument("--target", required=True, help="a known target's name (sdc-client model)")
+    track.add_argument("--split", help="dataset split to run (train, val, test...)")
+    track.add_argument(
+        "--out", type=Path, default=Path("sdcnet-track"), help="output folder: poses.jsonl"
+    )
     sub.add_parser("health", parents=[common], help="is the service live and ready?")
     sub.add_parser("model", parents=[common], help="the service's model metadata (JSON)")
     return p
 
 
 def _frame_kwargs(args: argparse.Namespace) -> dict[str, float]:
-    names = ("fx", "fy", "cx", "cy", "depth_scale")
+    names = ("fx", "fy", "cx", "cy", "depth_scale", "max_sigma")
     return {k: getattr(args, k) for k in names if getattr(args, k) is not None}
 
 
@@ -181,6 +208,26 @@ def cmd_pose(client: Client, args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_track(client: Client, args: argparse.Namespace) -> int:
+    """Every frame of ``args.source`` in order through ``Tracker``: a line printed per frame,
+    the answers in ``poses.jsonl`` (one JSON object a line, with its ``frame``)."""
+    pairs = find_pairs(args.source, args.split)
+    if not pairs:
+        raise InputError(f"no pairs found in {args.source}")
+    tracker = Tracker(client, args.target)
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / "poses.jsonl"
+    with path.open("w") as poses:
+        for pair in pairs:
+            gray, sparse = pair.sources()
+            options = {**_frame_kwargs(args), **pair.options}
+            answer = tracker.pose(gray, sparse, outlier_removal=args.outlier_removal, **options)
+            poses.write(json.dumps({"frame": pair.name, **answer.answer}) + "\n")
+            print(track_line(pair.name, answer))
+    print(f"wrote {path}")
+    return EXIT_OK
+
+
 def cmd_health(client: Client, args: argparse.Namespace) -> int:
     state = client.health()
     print(
@@ -199,6 +246,7 @@ COMMANDS = {
     "infer": cmd_infer,
     "batch": cmd_batch,
     "pose": cmd_pose,
+    "track": cmd_track,
     "health": cmd_health,
     "model": cmd_model,
 }

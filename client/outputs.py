@@ -1,9 +1,11 @@
 """What ``sdc-client`` writes for one frame, and the summary it prints.
 
-``depth.npy`` float32 (H, W) metres (0 outside the mask), ``mask.png`` 8-bit (255 =
-spacecraft), ``points.ply`` binary PLY (camera frame, metres) and ``preview.png``: the gray
-image, the coloured depth, the mask and a side view of the point cloud, side by side, zoomed
-on the spacecraft.
+``depth.npy`` float32 (H, W) metres (0 outside the mask), ``sigma.npy`` float32 (H, W) metres
+(the depth's 1-sigma uncertainty, 0 outside the mask), ``mask.png`` 8-bit (255 = spacecraft),
+``points.ply`` binary PLY (camera frame, metres; each point's sigma as the vertex property
+``sigma``, as the service's PLY answer) and ``preview.png``: the gray image, the coloured
+depth, its sigma, the mask and a side view of the point cloud, side by side, zoomed on the
+spacecraft.
 """
 
 from __future__ import annotations
@@ -13,11 +15,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Completion
-from sdcnet.pointcloud import write_ply
+from sdcnet.pointcloud import point_pixels, write_ply
 from sdcnet.visualize import colorize_depth, gray_bgr, labelled, montage, object_crop, side_view
 
-OUTPUT_FILES = ("depth.npy", "mask.png", "points.ply", "preview.png")
+OUTPUT_FILES = ("depth.npy", "sigma.npy", "mask.png", "points.ply", "preview.png")
 
 
 def gray_for_display(image: np.ndarray) -> np.ndarray:
@@ -31,8 +34,16 @@ def gray_for_display(image: np.ndarray) -> np.ndarray:
     return (image.astype(np.float32) * (255.0 / top)).astype(np.uint8)
 
 
+def sigma_caption(result: Completion) -> str:
+    """The preview's caption of the sigma panel: its range on the mask, centimetres."""
+    sigma = result.sigma[result.mask]
+    if not sigma.size:
+        return "sigma (empty)"
+    return f"sigma {100 * sigma.min():.1f}-{100 * sigma.max():.1f} cm"
+
+
 def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray:
-    """BGR montage: gray | coloured depth | mask | point-cloud side view."""
+    """BGR montage: gray | coloured depth | coloured sigma | mask | point-cloud side view."""
     window = object_crop(result.mask)
     valid = result.depth[result.mask & (result.depth > 0)]
     depth_caption = (
@@ -44,6 +55,7 @@ def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray
             [
                 labelled(gray_bgr(gray[window]), "gray"),
                 labelled(colorize_depth(result.depth[window]), depth_caption),
+                labelled(colorize_depth(result.sigma[window]), sigma_caption(result)),
                 labelled(gray_bgr(mask), f"mask {int(result.mask.sum())} px"),
                 labelled(side_view(result.points, tile), f"side view {len(result.points)} pts"),
             ]
@@ -52,19 +64,29 @@ def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray
     )
 
 
+def point_sigma(result: Completion) -> np.ndarray:
+    """float32 (N,) metres: the sigma of each point, read at the pixel it was made from."""
+    K, (height, width) = result.meta["intrinsics"], result.depth.shape
+    intrinsics = Intrinsics(K["fx"], K["fy"], K["cx"], K["cy"], width, height)
+    rows, cols = point_pixels(result.points, intrinsics)
+    return result.sigma[rows, cols]
+
+
 def write_outputs(out: Path, gray: np.ndarray, result: Completion) -> list[Path]:
-    """Write the four files of one frame into ``out`` (created); returns their paths."""
+    """Write the five files of one frame into ``out`` (created); returns their paths."""
     out.mkdir(parents=True, exist_ok=True)
-    paths = [out / name for name in OUTPUT_FILES]
-    np.save(paths[0], result.depth, allow_pickle=False)
-    cv2.imwrite(str(paths[1]), (result.mask * 255).astype(np.uint8))
-    comments = [
+    paths = dict(zip(OUTPUT_FILES, (out / name for name in OUTPUT_FILES), strict=True))
+    np.save(paths["depth.npy"], result.depth, allow_pickle=False)
+    np.save(paths["sigma.npy"], result.sigma, allow_pickle=False)
+    cv2.imwrite(str(paths["mask.png"]), (result.mask * 255).astype(np.uint8))
+    comments = (
         "sdcnet point cloud: camera frame (x right, y down, z forward), metres",
+        "sigma: the depth's 1-sigma uncertainty, metres",
         f"model_version {result.model_version}",
-    ]
-    write_ply(paths[2], result.points, tuple(comments))
-    cv2.imwrite(str(paths[3]), preview(gray_for_display(gray), result))
-    return paths
+    )
+    write_ply(paths["points.ply"], result.points, comments, {"sigma": point_sigma(result)})
+    cv2.imwrite(str(paths["preview.png"]), preview(gray_for_display(gray), result))
+    return list(paths.values())
 
 
 def summary(result: Completion, url: str, written: list[Path]) -> str:
@@ -78,6 +100,8 @@ def summary(result: Completion, url: str, written: list[Path]) -> str:
         if valid.size
         else "no foreground"
     )
+    sigma = result.sigma[result.mask]
+    uncertainty = f"median {np.median(sigma):.3f} m on the mask" if sigma.size else "no foreground"
     t = result.timings_ms
     server = ", ".join(f"{p} {t.get(f'{p}_ms', 0):.1f}" for p in ("decode", "queue", "inference"))
     server += f", encode {t.get('encode_ms', 0):.1f} ms"
@@ -86,7 +110,9 @@ def summary(result: Completion, url: str, written: list[Path]) -> str:
         f"  image     {width} x {height}, {meta.get('returns', '?')} LIDAR returns",
         f"  mask      {int(result.mask.sum()):,} px ({100 * result.mask.sum() / pixels:.1f} %)",
         f"  depth     {depth}",
-        f"  points    {len(result.points):,} ({meta.get('outliers_removed', 0)} outliers removed)",
+        f"  sigma     {uncertainty}",
+        f"  points    {len(result.points):,} ({meta.get('outliers_removed', 0)} outliers, "
+        f"{meta.get('uncertain_removed', 0)} above max_sigma removed)",
         f"  latency   {result.latency_s * 1e3:.1f} ms round trip; server {server}",
         "  wrote     " + "  ".join(str(p) for p in written),
     ]

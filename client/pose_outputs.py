@@ -58,6 +58,8 @@ def pose_summary(answer: PoseAnswer, target: str, url: str, written: list[Path])
     angle = np.degrees(2 * np.arccos(np.clip(pose.quaternion_wxyz()[0], -1, 1)))
     t = answer.timings_ms
     sigma = a.get("rotation_sigma_deg")
+    cut = a.get("sigma_limit_m")
+    limit = "no point" if cut is None else f"depth sigma <= {100 * cut:.1f} cm"
     lines = [
         f"pose of {target} at {url} ({'tracked' if a['tracked'] else 'from scratch'})",
         f"  t         [{pose.t[0]:.3f}, {pose.t[1]:.3f}, {pose.t[2]:.3f}] m "
@@ -70,6 +72,9 @@ def pose_summary(answer: PoseAnswer, target: str, url: str, written: list[Path])
         f"{a['consistency']:.2f}, returns rmse "
         + (f"{a['returns_rmse_m']:.3f} m" if a.get("returns_rmse_m") is not None else "n/a")
         + (f", sigma {sigma:.2f} deg" if sigma is not None else ""),
+        f"  cloud     {a['completion']['point_count']:,} points registered ({limit}; "
+        f"{a['completion']['uncertain_removed']:,} more uncertain left out)",
+        "  verdict   " + a["verdict"] + (f" ({', '.join(a['reasons'])})" if a["reasons"] else ""),
         "  ambiguous "
         + (f"yes: {len(a['alternatives'])} alternatives" if a["ambiguous"] else "no"),
         f"  latency   {answer.latency_s * 1e3:.1f} ms round trip; server inference "
@@ -77,6 +82,20 @@ def pose_summary(answer: PoseAnswer, target: str, url: str, written: list[Path])
         "  wrote     " + "  ".join(str(p) for p in written),
     ]
     return "\n".join(lines)
+
+
+def track_line(frame: str, answer: PoseAnswer) -> str:
+    """One line per frame of ``sdc-client track``: the verdict, tracked or not, t, latency."""
+    t = answer.pose.t
+    reasons = f" ({', '.join(answer.reasons)})" if answer.reasons else ""
+    if answer.answer["tracked"]:
+        how = "tracked"
+    else:
+        how = "left its init" if "left_init" in answer.reasons else "from scratch"
+    return (
+        f"{frame}: {answer.verdict}{reasons}, {how}, "
+        f"t [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] m, {answer.latency_s * 1e3:.0f} ms"
+    )
 
 
 def write_pose_outputs(

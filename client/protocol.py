@@ -4,10 +4,10 @@ answer layouts (``sdcnet.compact``) turned back into full-frame arrays.
 
 The request is a small JSON header followed by the raw gray image (1 byte a pixel) and the
 LIDAR returns as a list (12 bytes a return): no image codec, no multipart form, no dense map.
-The answer holds the depth and the mask of the spacecraft's region (the smallest window that
-holds the mask: everything outside it is 0), the mask 8 pixels a byte, and the points;
-``read_answer`` pastes them into full frames, equal to the service's full-frame answer bit
-for bit (float16 depth, on request, is not).
+The answer holds the depth, the mask and the depth's uncertainty (sigma) of the spacecraft's
+region (the smallest window that holds the mask: everything outside it is 0), the mask 8
+pixels a byte, and the points; ``read_answer`` pastes them into full frames, equal to the
+service's full-frame answer bit for bit (float16 depth, on request, is not).
 """
 
 from __future__ import annotations
@@ -19,11 +19,10 @@ from typing import Any
 import numpy as np
 
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
+from sdcnet.formats.v2 import DTYPES, HEADER_LENGTH
 
 PATH = "/v2/models/sdcnet/infer"
-HEADER_LENGTH = "Inference-Header-Content-Length"
-_GRAY_DATATYPES = {np.dtype(np.uint8): "UINT8", np.dtype(np.uint16): "UINT16"}
-_DTYPES = {"UINT8": "u1", "FP16": "<f2", "FP32": "<f4"}
+_GRAY_DATATYPES = {DTYPES[name]: name for name in ("UINT8", "UINT16")}
 _TIMINGS = ("decode_ms", "queue_ms", "inference_ms", "encode_ms")
 _INTRINSICS = ("fx", "fy", "cx", "cy")
 
@@ -39,8 +38,8 @@ def request_body(
     float16_depth: bool = False,
 ) -> tuple[bytes, dict[str, str]]:
     """(body, headers) of one request: gray uint8/uint16 (H, W), returns float32 (N, 3) (row,
-    column, Z metres), ``parameters`` (intrinsics in pixels, ``outlier_removal``); depth as
-    float16 residuals when ``float16_depth``."""
+    column, Z metres), ``parameters`` (intrinsics in pixels, ``outlier_removal``,
+    ``max_sigma`` in metres); depth as float16 residuals when ``float16_depth``."""
     gray = np.ascontiguousarray(gray)
     returns = np.ascontiguousarray(returns, "<f4")
     depth_parameters = {"binary_data": True, "region": True, "fp16": float16_depth}
@@ -64,6 +63,7 @@ def request_body(
             {"name": "depth", "parameters": depth_parameters},
             {"name": "mask", "parameters": {"binary_data": True, "region": True, "bits": True}},
             {"name": "points", "parameters": {"binary_data": True}},
+            {"name": "sigma", "parameters": {"binary_data": True, "region": True}},
         ],
     }
     encoded = json.dumps(header).encode()
@@ -79,6 +79,7 @@ class Answer:
     depth: np.ndarray  # float32 (H, W) metres
     mask: np.ndarray  # bool (H, W)
     points: np.ndarray  # float32 (N, 3) metres
+    sigma: np.ndarray  # float32 (H, W) metres
     meta: dict[str, Any]  # the summary, shaped as POST /complete's (meta.json)
 
 
@@ -87,7 +88,7 @@ def _tensor(output: dict, binary: bytes, offset: int) -> tuple[np.ndarray, int]:
     size = output["parameters"]["binary_data_size"]
     if offset + size > len(binary):
         raise AnswerError(f"output {output['name']} runs past the end of the binary data")
-    dtype = np.dtype(_DTYPES[output["datatype"]])
+    dtype = DTYPES[output["datatype"]]
     array = np.frombuffer(binary, dtype, size // dtype.itemsize, offset)
     return array, offset + size
 
@@ -129,6 +130,7 @@ def read_answer(body: bytes, header_length: str | None, shape: tuple[int, int]) 
         depth = _full_frame(arrays["depth"], outputs["depth"], shape)
         mask = _full_frame(arrays["mask"], outputs["mask"], shape).astype(bool, copy=False)
         points = arrays["points"].reshape(-1, 3).copy()  # writable, not a view of the body
-        return Answer(depth, mask, points, summary(document))
+        sigma = _full_frame(arrays["sigma"], outputs["sigma"], shape)
+        return Answer(depth, mask, points, sigma, summary(document))
     except (ValueError, KeyError, TypeError) as exc:
         raise AnswerError(f"{type(exc).__name__}: {exc}") from exc

@@ -40,10 +40,10 @@ def cmd_port(args: argparse.Namespace) -> int:
 
 def cmd_generate(args: argparse.Namespace) -> int:
     """One frame of the project's generator (paper camera and LIDAR, 1024 x 1024)."""
-    from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+    from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
     config = GenerateConfig(models=1, views=1, seed=args.seed)
-    sample = make_sample(config, build_model(config, 0), 0, 0, "test")
+    sample = make_sample(config, build_spacecraft(config, 0), 0, 0, "test")
     args.dir.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(args.dir / "gray.png"), sample.gray):
         raise SystemExit(f"cannot write {args.dir / 'gray.png'}")
@@ -65,7 +65,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     gray = cv2.imread(str(args.dir / "gray.png"), cv2.IMREAD_UNCHANGED)
     sparse = np.load(args.dir / "sparse.npy", allow_pickle=False)
     model = OnnxModel(args.model, provider="cpu", threads=args.threads)
-    ref = complete(model.run, gray, sparse, model.stride)
+    K = model.info.intrinsics.scaled(gray.shape[1], gray.shape[0])  # what the service defaults to
+    ref = complete(model.run, gray, sparse, K.fx, model.stride, model.info.work_pixels)
 
     depth = np.load(args.result / "depth.npy", allow_pickle=False)
     mask = cv2.imread(str(args.result / "mask.png"), cv2.IMREAD_UNCHANGED) > 0

@@ -19,21 +19,22 @@ from sdcnet.dataset_format import SampleStore
 from sdcnet.export.onnx_export import (
     MAX_DEPTH_ERROR_M,
     MIN_MASK_AGREEMENT,
+    Frame,
     export_checked,
-    model_metadata,
+    network_metadata_props,
 )
 from sdcnet.export.variants import to_fp16, to_int8
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
 
-def parity_frames(seed: int, count: int = 2) -> list:
-    """``count`` 1024 x 1024 frames of procedural spacecraft (gray, sparse), rendered now."""
+def parity_frames(seed: int, count: int = 2) -> list[Frame]:
+    """``count`` 1024 x 1024 frames of procedural spacecraft (gray, sparse, fx), rendered now."""
     config = GenerateConfig(models=count, views=1, seed=seed, split=(count, 0, 0))
     frames = []
     for m in range(count):
-        sample = make_sample(config, build_model(config, m), m, 0, "parity")
-        frames.append((sample.gray, sample.sparse))
+        sample = make_sample(config, build_spacecraft(config, m), m, 0, "parity")
+        frames.append((sample.gray, sample.sparse, sample.meta["intrinsics"]["fx"]))
     return frames
 
 
@@ -85,7 +86,7 @@ def export(args: argparse.Namespace) -> int:
         "train_command": state.get("train_config", {}).get("command", ""),
         "dataset_command": state.get("dataset", {}).get("command", ""),
     }
-    metadata = model_metadata(model, version, metrics, extra)
+    metadata = network_metadata_props(model, version, metrics, extra)
     cases = export_checked(model, args.out, metadata, parity_frames(args.parity_seed))
     print(
         f"{version}: parity, onnxruntime CPU vs PyTorch (bounds: depth <= "
@@ -96,6 +97,7 @@ def export(args: argparse.Namespace) -> int:
         print(
             f"  {c.size:4d} px, batch {c.batch}: max |depth diff| "
             f"{c.max_depth_error_m * 1000:.4f} mm over {c.compared_px} foreground px, "
+            f"sigma {100 * c.max_sigma_error:.4f} %, "
             f"mask agreement {100 * c.mask_agreement:.4f} %  "
             f"{'ok' if c.passed else 'FAILED'}"
         )
@@ -129,7 +131,8 @@ def calibration_frames(data: Path | None, count: int = 32) -> list:
     if data is None:
         return parity_frames(seed=4096, count=count)
     store = SampleStore(data)
-    return [(s.gray, s.sparse) for s in map(store.load, store.split("train", count))]
+    samples = map(store.load, store.split("train", count))
+    return [(s.gray, s.sparse, s.meta["intrinsics"]["fx"]) for s in samples]
 
 
 if __name__ == "__main__":

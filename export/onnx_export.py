@@ -2,7 +2,8 @@
 
 The parity check runs onnxruntime (CPU) against PyTorch on real generated frames at two sizes
 and batch 1 and 2, and fails the export when depth differs by more than 1 mm anywhere on the
-foreground or the foreground decisions agree on fewer than 99.99 % of pixels.
+foreground, sigma by more than 0.1 %, or the foreground decisions agree on fewer than 99.99 %
+of pixels.
 """
 
 from __future__ import annotations
@@ -18,23 +19,27 @@ import onnx
 import torch
 
 from sdcnet import __version__, runtime
+from sdcnet.pipeline import WORK_PIXELS
 from sdcnet.runtime import INPUTS, OUTPUTS, OnnxModel
 from sdcnet.training.model.sdcnet import SDCNet
 
 OPSET = 17
 MAX_DEPTH_ERROR_M = 1e-3
 MIN_MASK_AGREEMENT = 0.9999
+MAX_SIGMA_ERROR = 1e-3  # relative
 
 
-def model_metadata(
+def network_metadata_props(
     model: SDCNet, version: str, metrics: dict | None = None, extra: dict | None = None
 ) -> dict:
-    """The metadata_props written into the file: all the service needs besides the graph,
-    and the architecture (``model_config``) it was exported from."""
-    return runtime.model_metadata(
+    """The metadata_props of network ``model``'s ONNX file: ``sdcnet.runtime.metadata_props``
+    (all the service needs besides the graph) and the architecture (``model_config``) it was
+    exported from."""
+    return runtime.metadata_props(
         version,
         model.config.stride,
         model.config.factor,
+        WORK_PIXELS,
         metrics,
         {"model_config": json.dumps(model.config.to_dict()), **(extra or {})},
     )
@@ -45,8 +50,9 @@ def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Pa
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     model = model.eval().cpu()
-    example = (torch.rand(1, 1, 256, 256), torch.zeros(1, 1, 256, 256))
+    example = (torch.rand(1, 1, 256, 256), torch.zeros(1, 1, 256, 256), torch.ones(1, 1, 1, 1))
     dynamic = {name: {0: "batch", 2: "height", 3: "width"} for name in (*INPUTS, *OUTPUTS)}
+    dynamic["focal_px"] = {0: "batch"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notices
         torch.onnx.export(
@@ -73,51 +79,58 @@ def export_onnx(model: SDCNet, path: str | Path, metadata: dict[str, str]) -> Pa
 
 @dataclass
 class ParityCase:
-    """One comparison: ``size`` x ``size`` crops, ``batch`` of them; depth compared on the
-    ``compared_px`` pixels that either runtime calls foreground."""
+    """One comparison: ``size`` x ``size`` crops, ``batch`` of them; depth (metres) and sigma
+    (relative) compared on the ``compared_px`` pixels that either runtime calls foreground."""
 
     size: int
     batch: int
     max_depth_error_m: float
     mask_agreement: float
     compared_px: int
+    max_sigma_error: float = 0.0  # relative
 
     @property
     def passed(self) -> bool:
         return (
             self.max_depth_error_m <= MAX_DEPTH_ERROR_M
             and self.mask_agreement >= MIN_MASK_AGREEMENT
+            and self.max_sigma_error <= MAX_SIGMA_ERROR
         )
+
+
+#: One parity or calibration frame: gray uint8 (H, W), sparse float32 (H, W) metres, fx pixels.
+Frame = tuple[np.ndarray, np.ndarray, float]
 
 
 def parity_check(
     model: SDCNet,
     onnx_path: str | Path,
-    frames: list[tuple[np.ndarray, np.ndarray]],
+    frames: list[Frame],
     sizes: tuple[int, ...] = (512, 1024),
     batches: tuple[int, ...] = (1, 2),
 ) -> list[ParityCase]:
-    """Compare onnxruntime (CPU) with PyTorch on (gray uint8, sparse) frames, centre-cropped to
-    each size. Needs at least max(batches) frames."""
+    """Compare onnxruntime (CPU) with PyTorch on frames centre-cropped to each size. Needs at
+    least max(batches) frames."""
     session = OnnxModel(onnx_path, provider="CPUExecutionProvider")
     model = model.eval().cpu()
     cases = []
     for size in sizes:
         for batch in batches:
-            gray = (
-                np.stack([_centre(g, size) for g, _ in frames[:batch]])[:, None].astype(np.float32)
-                / 255
-            )
-            sparse = np.stack([_centre(s, size) for _, s in frames[:batch]])[:, None].astype(
-                np.float32
-            )
+            chosen = frames[:batch]
+            gray = np.stack([_centre(g, size) for g, _, _ in chosen])[:, None] / np.float32(255)
+            sparse = np.stack([_centre(s, size) for _, s, _ in chosen])[:, None]
+            focal = np.array([f for _, _, f in chosen], np.float32).reshape(-1, 1, 1, 1)
+            inputs = (gray.astype(np.float32), sparse.astype(np.float32), focal)
             with torch.no_grad():
-                ref_depth, ref_prob = (
-                    t.numpy() for t in model(torch.from_numpy(gray), torch.from_numpy(sparse))
-                )
-            depth, prob = session.run(gray, sparse)
+                reference = [t.numpy() for t in model(*map(torch.from_numpy, inputs))]
+            ref_depth, ref_prob, ref_sigma = reference
+            depth, prob, sigma = session.run(*inputs)
             foreground = ref_prob > 0.5
-            error = np.abs(depth - ref_depth)[foreground | (prob > 0.5)]
+            compared = foreground | (prob > 0.5)
+            error = np.abs(depth - ref_depth)[compared]
+            sigma_error = np.abs(sigma - ref_sigma)[compared] / np.maximum(
+                ref_sigma[compared], 1e-6
+            )
             cases.append(
                 ParityCase(
                     size,
@@ -125,6 +138,7 @@ def parity_check(
                     float(error.max()) if error.size else 0.0,
                     float(np.mean((prob > 0.5) == foreground)),
                     int(error.size),
+                    float(sigma_error.max()) if sigma_error.size else 0.0,
                 )
             )
     return cases
@@ -134,7 +148,7 @@ def export_checked(
     model: SDCNet,
     out: Path,
     metadata: dict[str, str],
-    frames: list[tuple[np.ndarray, np.ndarray]],
+    frames: list[Frame],
 ) -> list[ParityCase]:
     """Export ``model`` to a temporary file beside ``out``, check its parity on ``frames``, and
     only when every case passes move it to ``out`` (one rename): ``out`` never holds a graph

@@ -3,8 +3,8 @@
 - FP16: weights and activations in half precision, inputs and outputs kept float32.
 - INT8: static quantisation (QDQ, per-channel weights) of the convolutions, calibrated on
   spacecraft regions of training frames. Layers that carry metres or decide the mask at full
-  resolution stay in float: the depth head (its output is scaled by 10 m) and FSNet's head
-  (its outputs are the full-resolution mask logits).
+  resolution stay in float: the depth head (its output is scaled by the residual unit) and
+  FSNet's head (its outputs are the full-resolution mask logits).
 Each variant is only worth keeping if its accuracy (``sdc-train evaluate --onnx``) and speed
 (``benchmarks/model_latency.py``) beat FP32 for the user's processor.
 """
@@ -20,10 +20,14 @@ from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantTy
 from onnxruntime.quantization.shape_inference import quant_pre_process
 from onnxruntime.transformers.float16 import convert_float_to_float16
 
-from sdcnet.pipeline import normalise_gray, region_of_interest
+from sdcnet.pipeline import working_inputs
 
-#: Nodes left in float by INT8 (ONNX node names of the TorchScript exporter).
-FLOAT_NODES_PREFIXES = ("/fdcnet/head/", "/fsnet/head/")
+#: Modules of ``SDCNet`` that INT8 leaves in float (see the module doc): the depth head and
+#: FSNet's head.
+FLOAT_MODULES = ("fdcnet.head", "fsnet.head")
+#: Their nodes' names in the ONNX graph: the TorchScript exporter names a node after the path
+#: of the module that made it ("/fdcnet/head/Conv").
+FLOAT_NODES_PREFIXES = tuple(f"/{name.replace('.', '/')}/" for name in FLOAT_MODULES)
 
 
 def to_fp16(source: str | Path, target: str | Path) -> Path:
@@ -33,7 +37,8 @@ def to_fp16(source: str | Path, target: str | Path) -> Path:
 
 
 class RegionReader(CalibrationDataReader):
-    """Feeds the spacecraft regions of (gray uint8, sparse) frames, one per call."""
+    """Feeds (gray uint8, sparse, fx) frames as the pipeline does: each one's spacecraft region
+    on its working grid, one per call."""
 
     def __init__(self, frames: list[tuple[np.ndarray, np.ndarray]], stride: int):
         self._frames = iter(frames)
@@ -43,15 +48,16 @@ class RegionReader(CalibrationDataReader):
         frame = next(self._frames, None)
         if frame is None:
             return None
-        gray, sparse = frame
-        rows, cols = region_of_interest(sparse, self.stride).slices
+        inputs = working_inputs(*frame, self.stride)
         return {
-            "gray": normalise_gray(gray[rows, cols])[None, None],
-            "sparse": np.ascontiguousarray(sparse[rows, cols], np.float32)[None, None],
+            "gray": inputs.gray[None, None],
+            "sparse": inputs.sparse[None, None],
+            "focal_px": np.full((1, 1, 1, 1), inputs.focal_px, np.float32),
         }
 
 
-def _float_nodes(model: onnx.ModelProto) -> list[str]:
+def float_nodes(model: onnx.ModelProto) -> list[str]:
+    """Names of the nodes of ``model`` that INT8 leaves in float (``FLOAT_MODULES``')."""
     return [n.name for n in model.graph.node if n.name.startswith(FLOAT_NODES_PREFIXES)]
 
 
@@ -70,7 +76,7 @@ def to_int8(source: str | Path, target: str | Path, frames: Iterator | list, str
             per_channel=True,
             activation_type=QuantType.QUInt8,
             weight_type=QuantType.QInt8,
-            nodes_to_exclude=_float_nodes(onnx.load(str(prepared))),
+            nodes_to_exclude=float_nodes(onnx.load(str(prepared))),
         )
     finally:
         prepared.unlink(missing_ok=True)

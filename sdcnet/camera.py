@@ -100,3 +100,46 @@ class Intrinsics:
 
 PAPER_CAMERA = CameraSpec()
 PAPER_LIDAR = LidarSpec()
+
+#: Widest field of view intrinsics may give along either side of their frame, degrees: a
+#: pinhole camera sees less than 180 (fisheye lenses are refused), sdcnet's cameras 5 to 60;
+#: a focal length of a pixel on a frame of a thousand is a mistake of units, not a camera.
+MAX_FIELD_OF_VIEW_DEG = 150.0
+#: Longest focal length, pixels (the Open Inference Protocol route's bound since it exists):
+#: 0.00006 degrees across 1024 pixels.
+MAX_FOCAL_PX = 1e9
+
+
+class IntrinsicsError(ValueError):
+    """Intrinsics that cannot describe a frame of their size; the message says which value."""
+
+
+def check_intrinsics(K: Intrinsics) -> Intrinsics:
+    """``K`` when it can describe a ``K.width`` x ``K.height`` frame: every value finite,
+    each focal length between the one of a ``MAX_FIELD_OF_VIEW_DEG`` field of view along its
+    side and ``MAX_FOCAL_PX``, the principal point within half an image of the image. The one
+    check of every route of the service and of camera files; raises ``IntrinsicsError``."""
+    for name in ("fx", "fy", "cx", "cy"):
+        value = getattr(K, name)
+        if not math.isfinite(value):
+            raise IntrinsicsError(f"{name} must be a finite number of pixels, got {value}")
+    if K.fx <= 0 or K.fy <= 0:
+        raise IntrinsicsError(
+            f"focal lengths must be positive pixels, got fx {K.fx:g}, fy {K.fy:g}"
+        )
+    half_angle = math.tan(math.radians(MAX_FIELD_OF_VIEW_DEG / 2))
+    for name, focal, side in (("fx", K.fx, K.width), ("fy", K.fy, K.height)):
+        shortest = side / 2 / half_angle
+        if not shortest <= focal <= MAX_FOCAL_PX:
+            raise IntrinsicsError(
+                f"{name} {focal:g} px is not a focal length for a side of {side} px: it lies "
+                f"between {shortest:.4g} px (a {MAX_FIELD_OF_VIEW_DEG:g} degree field of view) "
+                f"and {MAX_FOCAL_PX:g} px"
+            )
+    w, h = K.width, K.height
+    if not (-w / 2 <= K.cx <= 1.5 * w and -h / 2 <= K.cy <= 1.5 * h):
+        raise IntrinsicsError(
+            f"the principal point ({K.cx:g}, {K.cy:g}) lies far outside the {w} x {h} image: "
+            "cx and cy are pixels, about (width - 1) / 2 and (height - 1) / 2"
+        )
+    return K

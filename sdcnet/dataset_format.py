@@ -7,9 +7,10 @@ A dataset directory holds:
 - ``manifest.jsonl``: one JSON line per sample (id, file, model, split, view, distance,
   sun angle, pose, intrinsics, number of LIDAR returns, foreground pixels), sorted by id;
 - ``samples/<id>.npz``: one zip per sample, deflate-compressed (lossless), with
-  ``gray.npy`` (H x W uint8), ``depth.npy`` (H x W float32, camera-frame Z in metres,
-  0 = background), ``sparse.npy`` (H x W float32, LIDAR returns as Z in metres, 0 = none)
-  and ``meta.json`` (the sample's manifest line). The foreground mask is ``depth > 0``.
+  ``gray.npy`` (H x W uint8, or uint16 for a 12- or 16-bit camera), ``depth.npy`` (H x W
+  float32, camera-frame Z in metres, 0 = background), ``sparse.npy`` (H x W float32, LIDAR
+  returns as Z in metres, 0 = none) and ``meta.json`` (the sample's manifest line). The
+  foreground mask is ``depth > 0``.
 
 Files are byte-for-byte reproducible: fixed zip timestamps, sorted keys, no wall-clock times.
 """

@@ -12,6 +12,7 @@ folder is used at its own units (times ``scale``).
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,27 +42,53 @@ def read_mesh_folder(folder: str | Path, scale: float = 1.0) -> tuple[MeshEntry,
         files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
         if not files:
             raise ValueError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {folder}")
+        for path in files:
+            _inside(folder, path, path.name)
         return tuple(MeshEntry(p, None, scale) for p in files)
     try:
         entries = json.loads(manifest.read_text())
     except json.JSONDecodeError as exc:
         raise ValueError(f"{manifest} is not valid JSON: {exc}") from exc
+    except RecursionError:
+        raise ValueError(f"{manifest} nests too deep to be a list of entries") from None
     if not isinstance(entries, list) or not entries:
         raise ValueError(f"{manifest} must be a non-empty list of {{file, longest_m}} entries")
-    result = []
-    for k, entry in enumerate(entries):
-        if not isinstance(entry, dict) or "file" not in entry:
-            raise ValueError(f"{manifest} entry {k} has no 'file'")
-        longest = entry.get("longest_m")
-        if longest is not None and (not isinstance(longest, int | float) or longest <= 0):
-            raise ValueError(
-                f"{manifest} entry {k} ({entry['file']}): longest_m must be a positive number"
-            )
-        path = folder / entry["file"]
-        if not path.is_file():
-            raise FileNotFoundError(f"{manifest} entry {k}: mesh file not found: {path}")
-        result.append(MeshEntry(path, None if longest is None else float(longest), scale))
-    return tuple(result)
+    return tuple(_entry(folder, manifest, k, entry, scale) for k, entry in enumerate(entries))
+
+
+def _entry(folder: Path, manifest: Path, k: int, entry: object, scale: float) -> MeshEntry:
+    """Entry ``k`` of a manifest, checked: ``file`` the name of a file inside the folder (once
+    links are resolved), ``longest_m`` a positive finite number (not a boolean) or absent."""
+    if not isinstance(entry, dict) or "file" not in entry:
+        raise ValueError(f"{manifest} entry {k} has no 'file'")
+    name = entry["file"]
+    if not isinstance(name, str) or not name.strip():
+        raise ValueError(f"{manifest} entry {k}: 'file' must be a file name, got {name!r}")
+    longest = entry.get("longest_m")
+    if longest is not None and (
+        isinstance(longest, bool)
+        or not isinstance(longest, int | float)
+        or not math.isfinite(longest)
+        or longest <= 0
+    ):
+        raise ValueError(
+            f"{manifest} entry {k} ({name}): longest_m must be a positive number of metres, "
+            f"got {longest!r}"
+        )
+    path = _inside(folder, folder / name, f"{manifest} entry {k}: {name}")
+    if not path.is_file():
+        raise FileNotFoundError(f"{manifest} entry {k}: mesh file not found: {path}")
+    return MeshEntry(path, None if longest is None else float(longest), scale)
+
+
+def _inside(folder: Path, path: Path, what: str) -> Path:
+    """``path`` when it lies in ``folder`` once links are resolved; ValueError otherwise."""
+    if not path.resolve().is_relative_to(folder.resolve()):
+        raise ValueError(
+            f"{what} lies outside the folder {folder} (links resolved): a folder's meshes are "
+            "its own files"
+        )
+    return path
 
 
 def load_scaled_mesh(
@@ -87,9 +114,14 @@ def load_scaled_mesh(
         raise ValueError(f"cannot read mesh {path}: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"mesh {path} holds no triangles")
+    if not np.isfinite(mesh.vertices).all():
+        raise ValueError(f"mesh {path} has vertices that are not finite numbers")
     extent = float(np.max(mesh.extents))
-    if not np.isfinite(extent) or extent <= 0:
-        raise ValueError(f"mesh {path} has a degenerate size ({extent})")
+    if not extent > 0 or not mesh.area > 0:
+        raise ValueError(
+            f"mesh {path} is degenerate: its triangles span {extent:g} units and cover "
+            f"{mesh.area:g} square units"
+        )
     if longest_m is not None:
         if longest_m <= 0:
             raise ValueError(f"longest_m must be positive, got {longest_m}")

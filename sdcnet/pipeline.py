@@ -1,14 +1,29 @@
-"""From a camera frame and its LIDAR map to dense depth, the same way everywhere.
+"""From a camera frame and its LIDAR map to dense depth, the same way everywhere, at a fixed cost.
 
-The service, the evaluation and the benchmarks all call ``complete``: it crops the frame to
-the spacecraft's region (bounded by its LIDAR returns, with a margin, aligned to the model's
-stride), runs the model on the crop and pastes the result back. Outside the crop the answer
-is background. The model is any callable ``(gray, sparse) -> (depth, probability)`` on
-(B, 1, h, w) float32 arrays: onnxruntime in the service, PyTorch in evaluation.
+The service, the evaluation, the training tiles and the benchmarks all go through this module:
+
+1. **crop**: the spacecraft's region, bounded by its LIDAR returns with a margin that follows
+   their spacing (``region_of_interest``); the LIDAR never reaches the Earth or the stars;
+2. **resample** the crop to the working grid: about ``work_pixels`` pixels whatever the
+   camera, the range and the size of the spacecraft in the frame (``working_grid``): a large
+   crop is shrunk, a small one enlarged up to ``MAX_UPSAMPLE`` times, so every frame costs the
+   network about the same and the network always sees the spacecraft a few hundred pixels
+   across;
+3. **infer**: the model, told the focal length in working pixels so that it can put its depths
+   in units of the pixel footprint;
+4. **paste back** at the frame's resolution: stars and noise dropped (``drop_specks``),
+   the probability resampled and thresholded, the depth resampled without blending across
+   depth edges (``resample_depth``). Outside the crop the answer is background.
+
+The model is any callable ``(gray, sparse, focal_px) -> (depth, probability[, sigma])`` on
+(B, 1, h, w) float32 arrays and a (B, 1, 1, 1) focal length: onnxruntime in the service,
+PyTorch in evaluation; sigma, the depth's uncertainty in metres, where the model has it.
 """
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -17,11 +32,17 @@ import numpy as np
 
 from sdcnet.returns import scatter_nearest
 
-ModelFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
 
-#: Margin around the LIDAR returns' bounding box, as a fraction of the image width (a 1024 px
-#: frame of the paper's camera gets 48 px: ~4 beam spacings) plus a fraction of the box itself.
-MARGIN_OF_IMAGE = 48 / 1024
+#: Pixels the network sees per frame, padding included: set by the 100 ms budget of one frame
+#: on two cores (docs/benchmarks.md), and carried by each model file (``work_pixels``).
+WORK_PIXELS = 512 * 512
+#: Most a small crop is enlarged: more would spend the budget on interpolated pixels.
+MAX_UPSAMPLE = 4.0
+#: Margin around the LIDAR returns' bounding box: this many return spacings (a part of the
+#: spacecraft can stick out beyond the outermost row of returns by up to one spacing) ...
+MARGIN_SPACINGS = 3.0
+#: ... plus this fraction of the box itself.
 MARGIN_OF_BOX = 0.15
 
 
@@ -43,26 +64,112 @@ class Region:
         return self.y1 - self.y0, self.x1 - self.x0
 
 
-def _aligned(lo: float, hi: float, size: int, stride: int) -> tuple[int, int]:
-    """Grow [lo, hi) to a multiple of ``stride`` (when the image allows) inside [0, size)."""
-    lo, hi = max(int(np.floor(lo)), 0), min(int(np.ceil(hi)), size)
-    length = min(-(-(hi - lo) // stride) * stride, size)
-    extra = length - (hi - lo)
-    lo = max(min(lo - extra // 2, size - length), 0)
+@dataclass(frozen=True)
+class WorkingGrid:
+    """The crop of a frame (``region``, frame pixels) and the grid the network sees it on
+    (``shape``, working pixels): ``scale`` working pixels per frame pixel along (rows,
+    columns)."""
+
+    region: Region
+    shape: tuple[int, int]
+
+    @property
+    def scale(self) -> tuple[float, float]:
+        (h, w), (hw, ww) = self.region.shape, self.shape
+        return hw / h, ww / w
+
+    @property
+    def identity(self) -> bool:
+        """Whether the network sees the crop's own pixels."""
+        return self.shape == self.region.shape
+
+
+#: Margin around fewer than ``MIN_RETURNS_FOR_SPACING`` returns (or returns on one line): this
+#: fraction of the frame's longer side, since they cannot tell how large the spacecraft is.
+FEW_RETURNS_MARGIN = 0.15
+MIN_RETURNS_FOR_SPACING = 3
+
+
+def return_spacing(rows: np.ndarray, cols: np.ndarray) -> float | None:
+    """Typical distance between neighbouring returns, pixels: the square root of the area of
+    the returns' convex hull per return (a grid of spacing a x b gives sqrt(a b)); None for
+    fewer than ``MIN_RETURNS_FOR_SPACING`` returns or returns on one line."""
+    if len(rows) < MIN_RETURNS_FOR_SPACING:
+        return None
+    points = np.stack([cols, rows], 1).astype(np.float32)
+    area = cv2.contourArea(cv2.convexHull(points))
+    return math.sqrt(area / len(rows)) if area > 0 else None
+
+
+def return_pixels(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the returns of a sparse map (metres, 0 = none), row-major: OpenCV's scan,
+    several times faster than ``np.nonzero`` on a 2048 x 2048 frame."""
+    found = cv2.findNonZero(cv2.compare(sparse, 0, cv2.CMP_GT))
+    if found is None:
+        return np.empty(0, np.intp), np.empty(0, np.intp)
+    xy = found.reshape(-1, 2)
+    return xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
+
+
+def region_of_interest(sparse: np.ndarray) -> Region:
+    """Region holding the spacecraft, from its LIDAR returns (``region_around``)."""
+    return region_around(*return_pixels(sparse), sparse.shape)
+
+
+def region_around(rows: np.ndarray, cols: np.ndarray, frame_shape: tuple[int, int]) -> Region:
+    """The returns' (pixel ``rows``, ``cols``) bounding box grown by ``MARGIN_SPACINGS`` return
+    spacings and ``MARGIN_OF_BOX`` of the box, inside the frame; the whole frame if there is
+    no return."""
+    H, W = frame_shape
+    if len(rows) == 0:
+        return Region(0, H, 0, W)
+    box = max(np.ptp(rows), np.ptp(cols)) + 1
+    spacing = return_spacing(rows, cols)
+    if spacing is None:
+        margin = FEW_RETURNS_MARGIN * max(H, W)
+    else:
+        margin = MARGIN_SPACINGS * min(spacing, box) + MARGIN_OF_BOX * box + 2
+    y0, y1 = int(max(rows.min() - margin, 0)), int(min(math.ceil(rows.max() + 1 + margin), H))
+    x0, x1 = int(max(cols.min() - margin, 0)), int(min(math.ceil(cols.max() + 1 + margin), W))
+    return Region(y0, y1, x0, x1)
+
+
+def _grow(lo: int, hi: int, length: int, size: int) -> tuple[int, int]:
+    """[lo, hi) grown (centred) to ``length`` pixels where the frame of ``size`` allows."""
+    length = min(max(length, hi - lo), size)
+    lo = min(max(lo - (length - (hi - lo)) // 2, 0), size - length)
     return lo, lo + length
 
 
-def region_of_interest(sparse: np.ndarray, stride: int) -> Region:
-    """Region holding the spacecraft, from its LIDAR returns; the whole frame if none. Its
-    sides are multiples of ``stride`` pixels (the model's) where the frame allows."""
-    H, W = sparse.shape
-    rows, cols = np.nonzero(sparse > 0)
-    if len(rows) == 0:
-        return Region(0, H, 0, W)
-    margin = MARGIN_OF_IMAGE * W + MARGIN_OF_BOX * max(np.ptp(rows), np.ptp(cols))
-    y0, y1 = _aligned(rows.min() - margin, rows.max() + 1 + margin, H, stride)
-    x0, x1 = _aligned(cols.min() - margin, cols.max() + 1 + margin, W, stride)
-    return Region(y0, y1, x0, x1)
+def working_grid(
+    region: Region,
+    frame_shape: tuple[int, int],
+    stride: int,
+    work_pixels: int = WORK_PIXELS,
+    max_upsample: float = MAX_UPSAMPLE,
+) -> WorkingGrid:
+    """The grid the network sees ``region`` on: one scale for both axes, the largest (up to
+    ``max_upsample``) at which the network's input, padded to multiples of ``stride``, holds
+    at most ``work_pixels`` pixels. The region grows, where the frame allows, to fill that
+    padded input with real pixels rather than padding."""
+    h, w = region.shape
+    scale = min(max_upsample, math.sqrt(work_pixels / (h * w)))
+    if 1.0 <= scale < 1.02:  # the crop fits as it is: no resampling for 2 % more pixels
+        scale = 1.0
+    for _ in range(50):  # rounding up to the stride can overshoot the budget: shrink a little
+        padded = (-(-h * scale // stride) * stride, -(-w * scale // stride) * stride)
+        if padded[0] * padded[1] <= work_pixels or padded == (stride, stride):
+            break
+        scale *= 0.99 * math.sqrt(work_pixels / (padded[0] * padded[1]))
+    y0, y1 = _grow(region.y0, region.y1, int(padded[0] / scale), frame_shape[0])
+    x0, x1 = _grow(region.x0, region.x1, int(padded[1] / scale), frame_shape[1])
+    grown = Region(y0, y1, x0, x1)
+    if scale == 1.0:
+        return WorkingGrid(grown, grown.shape)
+    shape = tuple(
+        max(1, min(int(p), round(n * scale))) for p, n in zip(padded, grown.shape, strict=True)
+    )
+    return WorkingGrid(grown, shape)
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -83,20 +190,112 @@ def normalise_gray(gray: np.ndarray) -> np.ndarray:
     raise TypeError(f"gray must be uint8 or uint16, got {gray.dtype}")
 
 
+def resample_sparse(sparse: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Move every LIDAR return to its pixel in a grid of ``shape`` (``place_returns``)."""
+    rows, cols = return_pixels(sparse)
+    return place_returns(rows, cols, sparse[rows, cols], sparse.shape, shape)
+
+
+def place_returns(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    z: np.ndarray,
+    source: tuple[int, int],
+    shape: tuple[int, int],
+) -> np.ndarray:
+    """The sparse map (``shape``, metres, 0 = none) of returns at pixel ``rows``, ``cols`` of
+    a grid of shape ``source``, each moved to its scaled position (pixel centres at integer
+    coordinates), the nearest winning a pixel. Interpolating a sparse map would invent depths
+    between returns; this keeps each return once."""
+    sy, sx = shape[0] / source[0], shape[1] / source[1]
+    r = np.clip(np.round((rows + 0.5) * sy - 0.5).astype(int), 0, shape[0] - 1)
+    c = np.clip(np.round((cols + 0.5) * sx - 0.5).astype(int), 0, shape[1] - 1)
+    return scatter_nearest(r, c, z, shape)
+
+
+def resample_image(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """An image (gray of any dtype, probability) resampled to ``shape``: area averaging to
+    shrink (no aliasing of the outline), bilinear to enlarge."""
+    if image.shape == shape:
+        return image
+    shrink = shape[0] * shape[1] < image.shape[0] * image.shape[1]
+    method = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
+    return cv2.resize(image, (shape[1], shape[0]), interpolation=method)
+
+
+#: Neighbouring working pixels whose depths differ by more than this many footprints (range /
+#: focal length) lie on two surfaces: the depth is not interpolated between them.
+DEPTH_EDGE_FOOTPRINTS = 4.0
+
+
+def resample_depth(depth: np.ndarray, shape: tuple[int, int], footprint_m: float) -> np.ndarray:
+    """A depth map (metres) resampled to ``shape``: bilinear on surfaces, nearest across depth
+    edges (``DEPTH_EDGE_FOOTPRINTS``), so no point is invented between a panel and the bus
+    behind it; nearest when shrinking."""
+    if depth.shape == shape:
+        return depth
+    size = (shape[1], shape[0])
+    if shape[0] * shape[1] < depth.shape[0] * depth.shape[1]:
+        return cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
+    kernel = np.ones((3, 3), np.uint8)
+    spread = cv2.dilate(depth, kernel) - cv2.erode(depth, kernel)
+    edge = (spread > DEPTH_EDGE_FOOTPRINTS * footprint_m).astype(np.uint8)
+    linear = cv2.resize(depth, size, interpolation=cv2.INTER_LINEAR)
+    rows, cols = return_pixels(cv2.resize(edge, size, interpolation=cv2.INTER_NEAREST))
+    if len(rows):  # nearest neighbour (as OpenCV picks it) on the few edge pixels
+        src_rows = np.minimum(rows * depth.shape[0] // shape[0], depth.shape[0] - 1)
+        src_cols = np.minimum(cols * depth.shape[1] // shape[1], depth.shape[1] - 1)
+        linear[rows, cols] = depth[src_rows, src_cols]
+    return linear
+
+
 @dataclass
 class Completion:
-    """Dense result on the full frame: depth in metres (0 off the mask), mask, probability."""
+    """The answer on the spacecraft's crop (``grid.region``): depth in metres (0 off the mask),
+    mask and foreground probability; the whole frame (``frame_shape``) on demand, zero
+    outside the crop."""
 
-    depth: np.ndarray  # (H, W) float32
-    mask: np.ndarray  # (H, W) bool
-    probability: np.ndarray  # (H, W) float32
-    region: Region
+    depth_crop: np.ndarray  # (h, w) float32
+    mask_crop: np.ndarray  # (h, w) bool
+    probability_crop: np.ndarray  # (h, w) float32
+    grid: WorkingGrid
+    frame_shape: tuple[int, int]
+    sigma_crop: np.ndarray | None = None  # (h, w) float32 metres, 0 off the mask
+
+    @property
+    def region(self) -> Region:
+        return self.grid.region
+
+    def _full(self, crop: np.ndarray) -> np.ndarray:
+        full = np.zeros(self.frame_shape, crop.dtype)
+        full[self.region.slices] = crop
+        return full
+
+    @functools.cached_property
+    def depth(self) -> np.ndarray:
+        """(H, W) float32 metres, 0 off the mask."""
+        return self._full(self.depth_crop)
+
+    @functools.cached_property
+    def mask(self) -> np.ndarray:
+        """(H, W) bool."""
+        return self._full(self.mask_crop)
+
+    @property
+    def probability(self) -> np.ndarray:
+        """(H, W) float32."""
+        return self._full(self.probability_crop)
+
+    @functools.cached_property
+    def sigma(self) -> np.ndarray | None:
+        """(H, W) float32 metres, 0 off the mask; None when the model has no uncertainty."""
+        return None if self.sigma_crop is None else self._full(self.sigma_crop)
 
 
-#: Foreground components without a LIDAR return are kept only this close (pixels) to the
-#: spacecraft, i.e. to a return or to a component kept before (a chain along a boom) ...
+#: Foreground components without a LIDAR return are kept only this close (working pixels) to
+#: the spacecraft, i.e. to a return or to a component kept before (a chain along a boom) ...
 KEEP_DISTANCE_PX = 16.0
-#: ... and only from this many pixels: a star is a blur of a few pixels, a part is larger.
+#: ... and only from this many working pixels: a star is a blur of a few pixels, a part larger.
 MIN_PART_PX = 8
 
 
@@ -109,10 +308,10 @@ def drop_specks(
     the spacecraft. One without returns (a boom or an antenna too thin or dark for the beams,
     or a star) is kept when it covers at least ``min_part_px`` pixels and a chain of foreground
     components, each within ``keep_distance_px`` (Chebyshev) of the next, links it to a return.
-    On 42 test-split and 64 real-mesh frames of the first shipped model, return-less components
-    off the target were a median 90-120 px from the nearest return and 2 px in area, the parts
-    of the spacecraft 14-22 px away; with 16 px and 8 px the false specks per frame fell from
-    10.6 to 0.05 (test split) and 10.1 to 0.03 (real meshes), 10-16 true pixels lost per frame.
+    Specks off the target lie far from every return and cover a few pixels; the parts of the
+    spacecraft lie a few spacings of returns away and are larger, so a distance and an area
+    between the two keep the one and drop the other (the frames that chose
+    ``KEEP_DISTANCE_PX`` and ``MIN_PART_PX``: docs/development.md, "Measurements").
 
     One dilation by half the distance joins what is linked; its connected pieces that hold a
     return are the spacecraft's reach.
@@ -137,74 +336,80 @@ def drop_specks(
     return candidates & anchored[piece_of]
 
 
-def resample_sparse(sparse: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Move every LIDAR return to its pixel in a grid of ``shape`` (the nearest wins a pixel).
+@dataclass(frozen=True)
+class WorkingInputs:
+    """One frame's crop on its working grid, as the network takes it: gray float32 (h, w) in
+    [0, 1], sparse float32 (h, w) metres, the focal length in working pixels."""
 
-    Interpolating a sparse map would invent depths between returns; this keeps each return
-    once, at its scaled position (pixel centres at integer coordinates).
-    """
-    H, W = sparse.shape
-    rows, cols = np.nonzero(sparse > 0)
-    sy, sx = shape[0] / H, shape[1] / W
-    r = np.clip(np.round((rows + 0.5) * sy - 0.5).astype(int), 0, shape[0] - 1)
-    c = np.clip(np.round((cols + 0.5) * sx - 0.5).astype(int), 0, shape[1] - 1)
-    return scatter_nearest(r, c, sparse[rows, cols], shape)
+    gray: np.ndarray
+    sparse: np.ndarray
+    focal_px: float
+    grid: WorkingGrid
 
 
-def _run_at_scale(
-    model: ModelFn, gray: np.ndarray, sparse: np.ndarray, zoom: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Model outputs (depth, probability) for one crop, run ``zoom`` times larger."""
-    h, w = gray.shape
-    if abs(zoom - 1) < 0.05:
-        g, s = gray, sparse
-    else:
-        size = (max(1, round(w * zoom)), max(1, round(h * zoom)))
-        g = cv2.resize(gray, size, interpolation=cv2.INTER_AREA if zoom < 1 else cv2.INTER_LINEAR)
-        s = resample_sparse(sparse, (size[1], size[0]))
-    depth, prob = model(g[None, None], np.ascontiguousarray(s, np.float32)[None, None])
-    depth, prob = depth[0, 0], prob[0, 0]
-    if depth.shape != (h, w):
-        depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_LINEAR)
-        prob = cv2.resize(prob, (w, h), interpolation=cv2.INTER_LINEAR)
-    return depth, prob
+def working_inputs(
+    gray: np.ndarray,
+    sparse: np.ndarray,
+    focal_px: float,
+    stride: int,
+    work_pixels: int = WORK_PIXELS,
+    region: Region | None = None,
+) -> WorkingInputs:
+    """Crop a frame to the spacecraft's region (or ``region``) and resample it to its working
+    grid. gray uint8/uint16 (H, W); sparse float32 (H, W) metres, 0 = no return;
+    ``focal_px`` the camera's focal length in the frame's pixels (fx)."""
+    if gray.shape != sparse.shape:
+        raise ValueError(f"gray {gray.shape} and sparse {sparse.shape} differ in size")
+    if not (math.isfinite(focal_px) and focal_px > 0):
+        raise ValueError(f"focal_px must be a positive number of pixels, got {focal_px}")
+    rows, cols = return_pixels(sparse)
+    region = region_around(rows, cols, gray.shape) if region is None else region
+    grid = working_grid(region, gray.shape, stride, work_pixels)
+    g = grid.region
+    inside = (rows >= g.y0) & (rows < g.y1) & (cols >= g.x0) & (cols < g.x1)
+    rows, cols = rows[inside], cols[inside]
+    return WorkingInputs(
+        normalise_gray(resample_image(gray[g.slices], grid.shape)),
+        place_returns(rows - g.y0, cols - g.x0, sparse[rows, cols], g.shape, grid.shape),
+        focal_px * grid.scale[1],
+        grid,
+    )
+
+
+def run_model(model: ModelFn, inputs: WorkingInputs) -> tuple[np.ndarray, ...]:
+    """The model's depth (metres), probability and sigma (metres; None when the model has
+    none) on one frame's working grid (h, w)."""
+    outputs = model(
+        inputs.gray[None, None],
+        inputs.sparse[None, None],
+        np.full((1, 1, 1, 1), inputs.focal_px, np.float32),
+    )
+    depth, prob, *sigma = (o[0, 0] for o in outputs)
+    return depth, prob, (sigma[0] if sigma else None)
 
 
 def complete(
     model: ModelFn,
     gray: np.ndarray,
     sparse: np.ndarray,
+    focal_px: float,
     stride: int,
+    work_pixels: int = WORK_PIXELS,
     threshold: float = 0.5,
-    zoom: float = 1.0,
-    keep_distance_px: float = KEEP_DISTANCE_PX,
-    min_part_px: float = MIN_PART_PX,
 ) -> Completion:
-    """Run ``model`` on the spacecraft's region of one frame. gray uint8/uint16 (H, W);
-    sparse float32 (H, W) metres, 0 = no return.
-
-    ``zoom`` resamples the crop before the network so that its pixels match those the model
-    was trained on (the model's focal length in pixels over this image's, e.g. 2 for a
-    512 x 512 image of the paper's camera); the answer comes back at the image's resolution.
-    Foreground components without returns, smaller than ``min_part_px`` or farther than
-    ``keep_distance_px`` from the spacecraft (model pixels), are dropped (``drop_specks``).
-    """
-    if gray.shape != sparse.shape:
-        raise ValueError(f"gray {gray.shape} and sparse {sparse.shape} differ in size")
-    if not zoom > 0:
-        raise ValueError(f"zoom must be positive, got {zoom}")
-    region = region_of_interest(sparse, max(1, round(stride / zoom)))
-    rows, cols = region.slices
-    depth_crop, prob_crop = _run_at_scale(
-        model, normalise_gray(gray[rows, cols]), sparse[rows, cols], zoom
-    )
-    probability = np.zeros(gray.shape, np.float32)
-    probability[rows, cols] = prob_crop
-    mask = np.zeros(gray.shape, bool)
-    mask[rows, cols] = drop_specks(
-        prob_crop > threshold, sparse[rows, cols], keep_distance_px / zoom, min_part_px / zoom**2
-    )
-    depth = np.zeros(gray.shape, np.float32)
-    depth[rows, cols] = depth_crop
-    depth[~mask] = 0
-    return Completion(depth, mask, probability, region)
+    """Run ``model`` on the spacecraft's region of one frame, resampled to its working grid
+    (``working_inputs``), and paste the answer back at the frame's resolution."""
+    inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels)
+    grid = inputs.grid
+    depth_w, prob_w, sigma_w = run_model(model, inputs)
+    kept = drop_specks(prob_w > threshold, inputs.sparse, KEEP_DISTANCE_PX, MIN_PART_PX)
+    prob_w = np.where(kept | (prob_w <= threshold), prob_w, 0.0).astype(np.float32)
+    returns = inputs.sparse[inputs.sparse > 0]
+    footprint = float(returns.mean()) / inputs.focal_px if returns.size else 1.0
+    prob_crop = resample_image(prob_w, grid.region.shape)
+    depth_crop = resample_depth(depth_w, grid.region.shape, footprint)
+    mask_crop = kept if grid.identity else prob_crop > threshold
+    sigma_crop = None
+    if sigma_w is not None:
+        sigma_crop = resample_depth(sigma_w, grid.region.shape, math.inf) * mask_crop
+    return Completion(depth_crop * mask_crop, mask_crop, prob_crop, grid, gray.shape, sigma_crop)

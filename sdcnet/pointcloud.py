@@ -21,6 +21,7 @@ It is vectorised over the grid: O(N (2r + 1)^2), ~0.3 s for a million points on 
 from __future__ import annotations
 
 import io
+from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
@@ -36,18 +37,53 @@ SOR_STD_RATIO = 2.0
 _PLY_DTYPE = np.dtype("<f4")
 
 
-def back_project(depth: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """(N, 3) float32 camera-frame points (metres) of the ``mask`` pixels with depth > 0.
+#: Pixels of a frame processed at a time by ``back_project`` and ``statistical_outliers``:
+#: their memory follows this, not the frame (a 4096 x 4096 mask of 16.7M points took gigabytes
+#: whole).
+BAND_PIXELS = 2**17
+
+
+def _bands(height: int, width: int, band_pixels: int) -> range:
+    """First rows of the bands of whole rows, ``band_pixels`` pixels or fewer each."""
+    return range(0, height, max(1, band_pixels // max(width, 1)))
+
+
+def back_project(
+    depth: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics, band_pixels: int = BAND_PIXELS
+) -> np.ndarray:
+    """(N, 3) float32 camera-frame points (metres) of the ``mask`` pixels with depth > 0, in
+    row-major order, computed ``band_pixels`` at a time (beside the points themselves).
 
     ``depth`` is camera-frame Z in metres (H, W); ``mask`` is a boolean (H, W) selection.
     """
-    rows, cols = np.nonzero(mask & (depth > 0))
-    z = depth[rows, cols].astype(np.float64)
-    points = np.empty((len(z), 3), np.float32)
-    points[:, 0] = (cols - intrinsics.cx) * z / intrinsics.fx
-    points[:, 1] = (rows - intrinsics.cy) * z / intrinsics.fy
-    points[:, 2] = z
+    height, width = depth.shape
+    step = _bands(height, width, band_pixels).step
+    counts = [
+        int(np.count_nonzero(mask[y : y + step] & (depth[y : y + step] > 0)))
+        for y in range(0, height, step)
+    ]
+    points = np.empty((sum(counts), 3), np.float32)
+    at = 0
+    for y, count in zip(range(0, height, step), counts, strict=True):
+        rows, cols = np.nonzero(mask[y : y + step] & (depth[y : y + step] > 0))
+        z = depth[y : y + step][rows, cols].astype(np.float64)
+        band = points[at : at + count]
+        band[:, 0] = (cols - intrinsics.cx) * z / intrinsics.fx
+        band[:, 1] = (rows + y - intrinsics.cy) * z / intrinsics.fy
+        band[:, 2] = z
+        at += count
     return points
+
+
+def point_pixels(points: np.ndarray, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols), int64, of the pixels ``back_project`` made (N, 3) camera-frame points
+    (metres, z > 0) from: their projections, rounded. Exact for float32 points of frames up
+    to tens of thousands of pixels a side (a projection lands within 0.01 px of its pixel)."""
+    points = np.asarray(points, np.float64)
+    z = points[:, 2]
+    cols = np.rint(points[:, 0] * intrinsics.fx / z + intrinsics.cx).astype(np.int64)
+    rows = np.rint(points[:, 1] * intrinsics.fy / z + intrinsics.cy).astype(np.int64)
+    return rows, cols
 
 
 def statistical_outliers(
@@ -57,34 +93,85 @@ def statistical_outliers(
     radius: int = SOR_RADIUS,
     neighbours: int = SOR_NEIGHBOURS,
     std_ratio: float = SOR_STD_RATIO,
+    band_pixels: int = BAND_PIXELS,
 ) -> np.ndarray:
     """Boolean (H, W): the pixels of ``mask & (depth > 0)`` that the outlier filter keeps.
 
     A point's score is the mean 3-D distance (metres) to its ``neighbours`` nearest valid pixels
     within ``radius`` pixels on the grid (fewer where fewer exist); points
     scoring above ``mean + std_ratio * std`` over all points, or with no neighbour, are outliers.
+    The scores are computed for bands of rows of about ``band_pixels`` pixels at a time: the
+    memory beyond the answer is that of a band and of one score per point.
     """
     if radius < 1 or neighbours < 1:
         raise ValueError("radius and neighbours must be at least 1")
     valid = mask & (depth > 0)
     keep = np.zeros_like(valid)
-    rows, cols = np.nonzero(valid)
-    if len(rows) == 0:
+    occupied_rows = np.flatnonzero(valid.any(axis=1))
+    if len(occupied_rows) == 0:
         return keep
-    # The valid pixels' bounding box, padded by the window and flattened, so that a neighbour
-    # is an index offset: the one at +offset of pixel p is p + offset, the one at -offset is
-    # the pixel p - offset's neighbour at +offset, so half the offsets give all distances.
+    occupied_cols = np.flatnonzero(valid.any(axis=0))
+    # Each band of rows [a, b) is scored on a grid of its rows and the radius around them, by
+    # the valid pixels' columns padded by the radius (w wide from x0).
+    x0 = int(occupied_cols[0]) - radius
+    w = int(occupied_cols[-1]) + radius + 1 - x0
+    step = max(1, band_pixels // w)
+    bands = range(int(occupied_rows[0]), int(occupied_rows[-1]) + 1, step)
+    scores, counts = [], []
+    for a in bands:
+        rows, cols = np.nonzero(valid[a : a + step])
+        box = (a - radius, a + step + radius, x0, w)
+        score, count = _band_scores(
+            valid, depth, rows + a, cols, box, intrinsics, radius, neighbours
+        )
+        scores.append(score)
+        counts.append(count.astype(np.uint8))
+    score, count = np.concatenate(scores), np.concatenate(counts)
+    scored = score[count > 0]
+    if len(scored) == 0:
+        return keep
+    limit = scored.mean() + std_ratio * scored.std()
+    kept = (count > 0) & (score <= limit)
+    at = 0
+    for a in bands:  # the same pixels, in the same order
+        rows, cols = np.nonzero(valid[a : a + step])
+        chosen = kept[at : at + len(rows)]
+        keep[rows[chosen] + a, cols[chosen]] = True
+        at += len(rows)
+    return keep
+
+
+def _band_scores(
+    valid: np.ndarray,
+    depth: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    grid_box: tuple[int, int, int, int],
+    intrinsics: Intrinsics,
+    radius: int,
+    neighbours: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mean distance (metres) of the points at ``rows``, ``cols`` to their ``neighbours``
+    nearest ``valid`` pixels within ``radius``, and how many there were, on the grid of the
+    frame's rows ``top`` to ``bottom`` and the ``w`` columns from ``left`` (``grid_box``,
+    pixels, maybe outside the frame), where every neighbour of the points lies. The grid is
+    flattened, so that a neighbour is an index offset: the one at +offset of pixel p is
+    p + offset, the one at -offset is pixel p - offset's neighbour at +offset, so half the
+    offsets give all distances."""
+    top, bottom, left, w = grid_box
     r = radius
-    y0, x0 = rows.min() - r, cols.min() - r
-    h, w = rows.max() + r + 1 - y0, cols.max() + r + 1 - x0
-    n = h * w
-    index = (rows - y0) * w + (cols - x0)
+    n = (bottom - top) * w
     grid = np.zeros((4, n + r * w + r), np.float32)  # x, y, z (metres), valid; zero padding
-    z = depth[rows, cols].astype(np.float32)
-    grid[0, index] = (cols - intrinsics.cx) / intrinsics.fx * z
-    grid[1, index] = (rows - intrinsics.cy) / intrinsics.fy * z
-    grid[2, index] = z
-    grid[3, index] = 1
+    first_row, first_col = max(top, 0), max(left, 0)
+    ys, xs = np.nonzero(valid[first_row:bottom, first_col : left + w])
+    ys, xs = ys + first_row, xs + first_col
+    z = depth[ys, xs].astype(np.float32)
+    where = (ys - top) * w + (xs - left)
+    grid[0, where] = (xs - intrinsics.cx) / intrinsics.fx * z
+    grid[1, where] = (ys - intrinsics.cy) / intrinsics.fy * z
+    grid[2, where] = z
+    grid[3, where] = 1
+    index = (rows - top) * w + (cols - left)
     here = grid[:, :n]
     half = [dy * w + dx for dy in range(r + 1) for dx in range(-r, r + 1) if dy or dx > 0]
     distances = np.empty((len(index), 2 * len(half)), np.float32)
@@ -99,46 +186,93 @@ def statistical_outliers(
     found = np.isfinite(nearest)
     count = found.sum(axis=1)
     score = np.where(found, nearest, 0).sum(axis=1) / np.maximum(count, 1)
-    scores = score[count > 0]
-    if len(scores) == 0:
-        return keep
-    limit = scores.mean() + std_ratio * scores.std()
-    kept = (count > 0) & (score <= limit)
-    keep[rows[kept], cols[kept]] = True
-    return keep
+    return score, count
 
 
-def ply_bytes(points: np.ndarray, comments: tuple[str, ...] | list[str] = ()) -> bytes:
-    """Binary little-endian PLY of (N, 3) points (float32 x, y, z; metres)."""
-    points = np.asarray(points)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points must be (N, 3), got {points.shape}")
+#: The coordinates every vertex of sdcnet's PLY files starts with (float32, metres).
+XYZ = ("x", "y", "z")
+
+
+def ply_header(
+    count: int,
+    comments: tuple[str, ...] | list[str] = (),
+    properties: tuple[str, ...] = (),
+) -> bytes:
+    """The header of a binary little-endian PLY of ``count`` vertices: float32 x, y, z
+    (metres), then one float32 per name of ``properties`` (e.g. ``sigma``, metres). The file
+    is this, then the vertices' bytes (``ply_vertices``); readers that ignore properties they
+    do not know read the x, y, z of such a file as of one without them."""
     lines = ["ply", "format binary_little_endian 1.0"]
     for comment in comments:
         if "\n" in comment or "\r" in comment:
             raise ValueError("a PLY comment must be one line")
         lines.append(f"comment {comment}")
-    lines += [
-        f"element vertex {len(points)}",
-        "property float x",
-        "property float y",
-        "property float z",
-        "end_header",
-    ]
-    header = ("\n".join(lines) + "\n").encode("ascii")
-    return header + np.ascontiguousarray(points, dtype=_PLY_DTYPE).tobytes()
+    names = (*XYZ, *properties)
+    for name in properties:
+        if not name.isidentifier() or names.count(name) > 1:
+            raise ValueError(f"{name!r} cannot be a PLY property: a new identifier is needed")
+    lines.append(f"element vertex {count}")
+    lines += [f"property float {name}" for name in names]
+    lines.append("end_header")
+    return ("\n".join(lines) + "\n").encode("ascii")
 
 
-def write_ply(path: str | Path, points: np.ndarray, comments: tuple[str, ...] = ()) -> Path:
-    """Write ``points`` as a binary PLY file; returns its path."""
+def ply_vertices(points: np.ndarray, properties: tuple[np.ndarray, ...] = ()) -> np.ndarray:
+    """(N, 3 + k) little-endian float32 rows: each point's x, y, z (metres) then its value of
+    each of the k ``properties`` ((N,) arrays, in ``ply_header``'s order): the vertex data of
+    a PLY. Raises ``ValueError`` for points that are not (N, 3) or properties not (N,)."""
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be (N, 3), got {points.shape}")
+    for values in properties:
+        if np.shape(values) != (len(points),):
+            raise ValueError(f"a property must hold one value per point, got {np.shape(values)}")
+    rows = np.empty((len(points), 3 + len(properties)), _PLY_DTYPE)
+    rows[:, :3] = points
+    for k, values in enumerate(properties):
+        rows[:, 3 + k] = values
+    return rows
+
+
+def ply_bytes(
+    points: np.ndarray,
+    comments: tuple[str, ...] | list[str] = (),
+    properties: dict[str, np.ndarray] | None = None,
+) -> bytes:
+    """Binary little-endian PLY of (N, 3) points (float32 x, y, z; metres) and, per point, the
+    float32 values of ``properties`` (name -> (N,) array, e.g. ``{"sigma": ...}``)."""
+    properties = properties or {}
+    vertices = ply_vertices(points, tuple(properties.values()))
+    return ply_header(len(vertices), comments, tuple(properties)) + vertices.tobytes()
+
+
+def write_ply(
+    path: str | Path,
+    points: np.ndarray,
+    comments: tuple[str, ...] = (),
+    properties: dict[str, np.ndarray] | None = None,
+) -> Path:
+    """Write ``points`` (and their ``properties``, as ``ply_bytes``) as a binary PLY file;
+    returns its path."""
     path = Path(path)
-    path.write_bytes(ply_bytes(points, comments))
+    path.write_bytes(ply_bytes(points, comments, properties))
     return path
 
 
-def read_ply(source: str | Path | bytes | BinaryIO) -> tuple[np.ndarray, list[str]]:
-    """(points (N, 3) float32, comments) of a binary little-endian PLY with one float x, y, z
-    vertex element: the layout ``ply_bytes`` writes. Raises ValueError for anything else."""
+@dataclass(frozen=True)
+class PlyCloud:
+    """A PLY file's points (N, 3) float32 metres, its header comments and the values of its
+    other vertex properties (name -> (N,) float32), in the file's order."""
+
+    points: np.ndarray
+    comments: list[str]
+    properties: dict[str, np.ndarray]
+
+
+def read_ply(source: str | Path | bytes | BinaryIO) -> PlyCloud:
+    """The cloud of a binary little-endian PLY with one vertex element of float x, y, z and
+    any further float properties: the layout ``ply_bytes`` writes. Raises ValueError for
+    anything else."""
     if isinstance(source, bytes):
         stream: BinaryIO = io.BytesIO(source)
     elif isinstance(source, str | Path):
@@ -172,10 +306,15 @@ def read_ply(source: str | Path | bytes | BinaryIO) -> tuple[np.ndarray, list[st
             fields.append(rest)
         elif keyword != "obj_info":
             raise ValueError(f"unexpected PLY header line {line!r}")
-    if count is None or fields != ["float x", "float y", "float z"]:
+    kinds = [field.partition(" ")[0] for field in fields]
+    names = [field.partition(" ")[2] for field in fields]
+    unique = len(set(names)) == len(names)
+    if count is None or names[:3] != list(XYZ) or set(kinds) != {"float"} or not unique:
         raise ValueError(f"unsupported PLY layout: vertex {count} with properties {fields}")
-    data = stream.read(count * 3 * _PLY_DTYPE.itemsize)
-    if len(data) != count * 3 * _PLY_DTYPE.itemsize:
+    width = len(fields) * _PLY_DTYPE.itemsize
+    data = stream.read(count * width)
+    if len(data) != count * width:
         raise ValueError(f"PLY data is truncated: {count} vertices announced")
-    points = np.frombuffer(data, _PLY_DTYPE).reshape(count, 3).astype(np.float32)
-    return points, comments
+    vertices = np.frombuffer(data, _PLY_DTYPE).reshape(count, len(fields)).astype(np.float32)
+    extra = {name: vertices[:, 3 + k].copy() for k, name in enumerate(names[3:])}
+    return PlyCloud(np.ascontiguousarray(vertices[:, :3]), comments, extra)

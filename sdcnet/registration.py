@@ -25,14 +25,23 @@ From scratch (no initial pose):
    gaps). The target's self-symmetries (found once, ``TargetModel._symmetries``) turn the
    best into more candidates.
 4. ``returns`` (the LIDAR's own points, centimetre-accurate where the completed cloud is
-   decimetre-accurate) refine the candidates within ``ambiguity_margin`` of the best
+   decimetre-accurate) refine the candidates within ``returns_margin`` of the best
    consistency by point-to-plane ICP; the most consistent stays the answer unless another
    fits the returns clearly better. Those that fit about as well, far from it in rotation,
    make the answer ``ambiguous`` (a symmetric target) and are listed as alternatives.
 
 With an initial pose (tracking), steps 1-3 become one GICP refinement from it, then step 4
 on it alone (its symmetric twins scored, not refined); if the refinement leaves the target
-explaining the cloud poorly, the global search runs after all.
+explaining the cloud poorly, the global search runs after all, and the init's refined pose
+stays the answer unless another is more consistent by ``leave_init_margin`` and fits well
+(``reliable_min_consistency``), then unless another fits the returns clearly better: a
+tracker is not moved to a symmetric twin that fits as well, nor to a pose that fits poorly
+too. An answer outside the init's basin (``init_basin_deg``, ``init_basin_of_longest``) is
+not ``tracked``.
+
+Every answer carries a verdict (``judge``): "reliable" (use it as it is), "ambiguous" (a
+plausible pose, but another competes: a symmetric twin, a close runner-up, the track's init)
+or "unreliable" (the cloud does not support it), with the reasons.
 
 Units: metres, radians inside, degrees where a name says so. Deterministic: the subsets are
 drawn with fixed seeds.
@@ -49,7 +58,7 @@ import numpy as np
 import small_gicp
 import trimesh
 
-from sdcnet.rigid import Pose, axis_angle, rotation_angle_deg
+from sdcnet.rigid import Pose, axis_angle, pose_errors, rotation_angle_deg
 
 
 @dataclass(frozen=True)
@@ -70,14 +79,25 @@ class RegistrationConfig:
     voxel_of_longest: float = 1 / 32  # the observed cloud is downsampled to this voxel
     coarse_voxel_of_longest: float = 1 / 16  # ... and to this one for the hypotheses' GICP
     max_cloud_points: int = 50_000  # larger clouds are thinned first
+    max_input_points: int = 2**20  # a cloud given is thinned to this before anything else
+    max_refine_returns: int = 8192  # LIDAR returns refined on, at most: more are thinned
     field_cell_of_longest: float = 1 / 48  # distance field cell
     coarse_truncation_of_longest: float = 0.05  # distances above it score the same
     grid_cell_of_longest: float = 1 / 40  # cell of the consistency grid
     ambiguity_margin: float = 0.04  # consistency within this of the best: an alternative
+    returns_margin: float = 0.1  # ... with returns: within this, refined on them to choose
     alternative_deg: float = 10.0  # ... when at least this far from the best in rotation
     max_candidates: int = 6  # the answer and its alternatives, at most
     tracking_min_consistency: float = 0.5  # below it, tracking falls back to the search
     min_points: int = 12  # fewer observed points than this: no pose
+    leave_init_margin: float = 0.05  # tracking leaves the init's pose for one this more consistent
+    init_basin_deg: float = 25.0  # an answer within this rotation of init,
+    init_basin_of_longest: float = 0.5  # ... and this translation (x L), is in the init's basin
+    # The verdict (``judge``): below or within these, an answer is not "reliable".
+    reliable_min_consistency: float = 0.5  # poor_fit below it (unreliable)
+    reliable_min_points: int = 20  # too_few_points: downsampled cloud points (unreliable)
+    reliable_min_returns: int = 12  # too_few_returns: LIDAR returns refined on (unreliable)
+    reliable_min_lead: float = 0.06  # close_alternative: a pose >= alternative_deg away within this
     max_span_of_longest: float = 20.0  # a cloud wider than this (x L): no pose
     returns_max_distance_m: float = 0.5  # correspondence gate of the returns' refinement
     returns_ambiguity_ratio: float = 1.25  # alternatives whose returns fit this close
@@ -337,7 +357,12 @@ class PoseEstimate:
     ambiguous: bool
     alternatives: list[Hypothesis]
     hypotheses: int  # poses refined (1 when tracking held)
-    tracked: bool  # refined from the initial pose (no global search)
+    tracked: bool  # from the initial pose, and still in its basin
+    verdict: str  # "reliable", "ambiguous" or "unreliable": see ``judge``
+    reasons: list[str]  # why it is not "reliable" (``REASONS``); empty when it is
+    runner_up_consistency: float | None  # the best other pose's (>= alternative_deg away)
+    points: int  # of the downsampled cloud registered
+    returns: int  # LIDAR returns refined on (0: none)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -358,6 +383,61 @@ class UnusableCloudError(ValueError):
     def __init__(self, code: str, message: str):
         super().__init__(message)
         self.code = code
+
+
+#: Why an answer is not "reliable": the code, whether it makes the answer "unreliable" (else
+#: "ambiguous"), and what it means.
+REASONS: dict[str, tuple[bool, str]] = {
+    "poor_fit": (True, "the target at this pose explains the cloud poorly (low consistency)"),
+    "too_few_points": (True, "too few points of the cloud to register"),
+    "too_few_returns": (True, "too few LIDAR returns to check the pose against"),
+    "symmetric_twins": (False, "other poses (a symmetric target) fit the frame as well"),
+    "close_alternative": (False, "another pose fits the frame almost as well"),
+    "left_init": (False, "the answer left the basin of the tracker's init"),
+}
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What the verdict is drawn from: the answer's scores (see ``PoseEstimate``)."""
+
+    consistency: float
+    runner_up_consistency: float | None
+    twins: int  # alternatives that fit as well
+    points: int
+    returns: int
+    left_init: bool
+
+
+def judge(evidence: Evidence, config: RegistrationConfig = DEFAULT_CONFIG) -> tuple[str, list[str]]:
+    """The verdict on an answer and its reasons (``REASONS``), from its ``evidence`` and the
+    ``reliable_*`` thresholds of ``config``: "unreliable" when a reason says so, else
+    "ambiguous" when any reason holds, else "reliable"."""
+    e = evidence
+    lead = None if e.runner_up_consistency is None else e.consistency - e.runner_up_consistency
+    checks = {
+        "poor_fit": e.consistency < config.reliable_min_consistency,
+        "too_few_points": e.points < config.reliable_min_points,
+        "too_few_returns": e.returns < config.reliable_min_returns,
+        "symmetric_twins": e.twins > 0,
+        "close_alternative": e.twins == 0 and lead is not None and lead < config.reliable_min_lead,
+        "left_init": e.left_init,
+    }
+    reasons = [code for code, holds in checks.items() if holds]
+    if any(REASONS[code][0] for code in reasons):
+        return "unreliable", reasons
+    return ("ambiguous" if reasons else "reliable"), reasons
+
+
+def in_basin(model: TargetModel, pose: Pose, init: Pose) -> bool:
+    """Whether ``pose`` lies in the basin of ``init``: within ``init_basin_deg`` of its
+    rotation and ``init_basin_of_longest`` x L of its translation."""
+    config = model.config
+    rotation_deg, translation_m = pose_errors(pose, init)
+    return (
+        rotation_deg <= config.init_basin_deg
+        and translation_m <= config.init_basin_of_longest * model.longest_m
+    )
 
 
 @dataclass(frozen=True)
@@ -697,11 +777,24 @@ def _refine_on_returns(
 
 @dataclass
 class _Choice:
-    """The answer among the refined hypotheses, and those that explain the frame as well."""
+    """The answer among the refined hypotheses, those that explain the frame as well, and
+    the best consistency of the others at least ``alternative_deg`` from it."""
 
     best: Hypothesis
     alternatives: list[Hypothesis]
+    runner_up_consistency: float | None
     returns_rmse_m: float | None = None
+
+
+def _runner_up(model: TargetModel, best: Hypothesis, hypotheses: list[Hypothesis]) -> float | None:
+    """The highest consistency among ``hypotheses`` at least ``alternative_deg`` from
+    ``best`` in rotation; None when there is none."""
+    far = [
+        h.consistency
+        for h in hypotheses
+        if rotation_angle_deg(h.pose.R, best.pose.R) >= model.config.alternative_deg
+    ]
+    return max(far, default=None)
 
 
 def _search(model: TargetModel, observed: _Observed, timings: dict) -> list[Hypothesis]:
@@ -727,20 +820,32 @@ def _search(model: TargetModel, observed: _Observed, timings: dict) -> list[Hypo
 
 
 def _choose_searched(
-    model: TargetModel, hypotheses: list[Hypothesis], returns: np.ndarray | None
+    model: TargetModel,
+    hypotheses: list[Hypothesis],
+    returns: np.ndarray | None,
+    prior: Hypothesis | None = None,
 ) -> _Choice:
-    """Among the hypotheses as consistent as the best (within ``ambiguity_margin``): the
-    most consistent, unless another fits the returns clearly better once refined on them
-    (so near-symmetric poses do not flip at random); the alternatives are those whose
-    returns fit about as well (or, without returns, all of them)."""
+    """Among the hypotheses about as consistent as the best (within ``returns_margin``, or
+    ``ambiguity_margin`` without returns): the most consistent (or the ``prior``, the init's
+    refined pose, unless the best is more consistent by ``leave_init_margin`` and fits well:
+    ``reliable_min_consistency``), unless another fits the returns clearly better once
+    refined on them (so near-symmetric poses do not flip at random, and a near-twin a little
+    more consistent on a coarse cloud does not win over the returns); the alternatives are
+    those whose returns fit about as well (or, without returns, all of them)."""
     config = model.config
     top = hypotheses[0].consistency
+    if prior is not None and (
+        prior.consistency >= top - config.leave_init_margin or top < config.reliable_min_consistency
+    ):
+        top = prior.consistency
+        hypotheses = [prior, *(h for h in hypotheses if h is not prior)]
+    margin = config.ambiguity_margin if returns is None else config.returns_margin
     candidates = _distinct(
-        [h for h in hypotheses if h.consistency >= top - config.ambiguity_margin],
-        config.alternative_deg,
+        [h for h in hypotheses if h.consistency >= top - margin], config.alternative_deg
     )[: config.max_candidates]
     if returns is None:
-        return _Choice(candidates[0], candidates[1:])
+        runner_up = _runner_up(model, candidates[0], hypotheses)
+        return _Choice(candidates[0], candidates[1:], runner_up)
     incumbent = candidates[0]
     ranked = _refine_on_returns(model, candidates, returns)
     ratio = config.returns_ambiguity_ratio
@@ -748,7 +853,8 @@ def _choose_searched(
     alternatives = [
         h for h in ranked if h is not best and h.returns_error_m <= ratio * best.returns_error_m
     ]
-    return _Choice(best, alternatives, _returns_rmse(model, returns, best))
+    runner_up = _runner_up(model, best, hypotheses)
+    return _Choice(best, alternatives, runner_up, _returns_rmse(model, returns, best))
 
 
 def _choose_tracked(
@@ -760,12 +866,23 @@ def _choose_tracked(
     twins = _distinct([best, *_mirrored(model, best, observed)], model.config.alternative_deg)
     alternatives = [h for h in twins[1:] if _explains_as_well(model, h, best, returns)]
     return _Choice(
-        best, alternatives, None if returns is None else _returns_rmse(model, returns, best)
+        best,
+        alternatives,
+        _runner_up(model, best, twins),
+        None if returns is None else _returns_rmse(model, returns, best),
     )
 
 
 def _returns_rmse(model: TargetModel, returns: np.ndarray, best: Hypothesis) -> float:
     return _distances(model, returns, best.pose, model.config.returns_max_distance_m / 3)[1]
+
+
+def _thinned(points: np.ndarray, most: int) -> np.ndarray:
+    """Every k-th of (N, 3) ``points``, at most ``most`` of them: an even thinning of a cloud
+    in pixel order. Bounds the time and memory of one registration: a bright 2048 x 2048
+    frame's 4M points and 262,144 returns took 19 s (the returns' refinement, holding the
+    interpreter all along), 0.7 s thinned."""
+    return points[:: -(-len(points) // most)] if len(points) > most else points
 
 
 def _finite(points: np.ndarray) -> np.ndarray:
@@ -788,7 +905,7 @@ def estimate_pose(
     config = model.config
     timings: dict[str, float] = {}
     started, cpu_started = time.perf_counter(), time.thread_time()
-    cloud = _finite(cloud)
+    cloud = _finite(_thinned(cloud, config.max_input_points))
     if len(cloud) < config.min_points:
         raise UnusableCloudError(
             "too_few_points",
@@ -810,7 +927,7 @@ def estimate_pose(
             "are needed for a pose",
         )
     if returns is not None:
-        returns = _finite(returns)
+        returns = _finite(_thinned(returns, config.max_refine_returns))
         returns = returns if len(returns) >= config.min_points else None
     timings["prepare_ms"] = (time.perf_counter() - started) * 1e3
     refined = tracked = None
@@ -828,13 +945,24 @@ def estimate_pose(
         if refined is not None:
             searched = sorted([refined, *searched], key=lambda h: -h.consistency)
         mark = time.perf_counter()
-        choice, hypotheses = _choose_searched(model, searched, returns), len(searched)
+        choice = _choose_searched(model, searched, returns, prior=refined)
+        hypotheses = len(searched)
     timings["choice_ms"] = (time.perf_counter() - mark) * 1e3
     best = choice.best
     if not np.all(np.isfinite(best.pose.matrix())):
         raise UnusableCloudError("no_pose", "the registration diverged on this cloud")
     voxel = model.longest_m * config.voxel_of_longest
     fitness, rmse = _distances(model, observed.points, best.pose, 3 * voxel)
+    left_init = init is not None and not in_basin(model, best.pose, init)
+    evidence = Evidence(
+        consistency=best.consistency,
+        runner_up_consistency=choice.runner_up_consistency,
+        twins=len(choice.alternatives),
+        points=len(observed.points),
+        returns=0 if returns is None else len(returns),
+        left_init=left_init,
+    )
+    verdict, reasons = judge(evidence, config)
     timings["total_ms"] = (time.perf_counter() - started) * 1e3
     # CPU time of this thread: what the registration costs whatever else the cores run.
     timings["cpu_ms"] = (time.thread_time() - cpu_started) * 1e3
@@ -849,6 +977,11 @@ def estimate_pose(
         ambiguous=bool(choice.alternatives),
         alternatives=choice.alternatives,
         hypotheses=hypotheses,
-        tracked=tracked is not None,
+        tracked=init is not None and not left_init,
+        verdict=verdict,
+        reasons=reasons,
+        runner_up_consistency=choice.runner_up_consistency,
+        points=evidence.points,
+        returns=evidence.returns,
         timings_ms={k: round(v, 3) for k, v in timings.items()},
     )

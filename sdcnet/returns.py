@@ -17,6 +17,7 @@ On disk, a CSV file with the header ``row,col,z_m`` and one return per line, e.g
 from __future__ import annotations
 
 import io
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -135,51 +136,110 @@ def returns_from_dense(sparse: np.ndarray) -> np.ndarray:
     return returns
 
 
-def _bad_line(lines: list[str]) -> str:
-    """Which data line of a CSV is not three numbers, and why (numpy's own parser failed)."""
-    for number, line in enumerate(lines[1:], start=2):
-        if not line.strip():
-            continue
-        fields = line.split(",")
-        try:
-            if len(fields) != 3:
-                raise ValueError(f"{len(fields)} values")
-            [float(f) for f in fields]
-        except ValueError as exc:
-            return f"line {number}: expected row,col,z_m numbers, got {line!r} ({exc})"
-    return "expected row,col,z_m numbers on every line"
+#: Bytes of CSV text parsed at a time: numpy's parser holds the interpreter for the whole of a
+#: call, so a long file is parsed in blocks (about 60,000 returns each), between which a
+#: service's other threads and event loop run.
+CSV_BLOCK_BYTES = 2**20
 
 
-def parse_returns_csv(text: str, source: str = "returns CSV") -> np.ndarray:
-    """float32 (N, 3) returns of CSV text: the header ``row,col,z_m``, then one return per
-    line (blank lines skipped). Checked as ``check_returns`` without a frame; every error
-    (``ReturnsError``) starts with ``source`` and names the line or return at fault."""
-    lines = text.lstrip("\ufeff").splitlines()
-    header = tuple(cell.strip() for cell in lines[0].split(",")) if lines else ()
+def parse_returns_csv(
+    data: bytes | str, source: str = "returns CSV", max_returns: int | None = None
+) -> np.ndarray:
+    """float32 (N, 3) returns of CSV text (UTF-8 bytes, or a string): the header
+    ``row,col,z_m``, then one return per line (blank lines skipped). Checked as
+    ``check_returns`` without a frame. Its lines are counted before anything is parsed: more
+    than ``max_returns`` is a ``ReturnsError`` of code ``too_many_returns``; then it is parsed
+    ``CSV_BLOCK_BYTES`` at a time. Every error (``ReturnsError``; code ``not_text`` for bytes
+    that are not UTF-8) starts with ``source`` and names the line or return at fault."""
+    if isinstance(data, str):
+        data = data.encode()
+    first, _, body = data.removeprefix(b"\xef\xbb\xbf").partition(b"\n")
+    header = tuple(cell.strip() for cell in _text(first, 1, source).split(","))
     if header != CSV_HEADER:
         raise ReturnsError(
             "invalid_returns",
             f"{source}: the first line must be the header {','.join(CSV_HEADER)}",
         )
-    if not any(line.strip() for line in lines[1:]):
+    lines = body.count(b"\n") + (1 if body and not body.endswith(b"\n") else 0)
+    if max_returns is not None and lines > max_returns:
+        raise ReturnsError(
+            "too_many_returns",
+            f"{source}: {lines} lines after the header, more than the {max_returns} returns "
+            "allowed",
+        )
+    blocks, line = [np.empty((0, 3))], 2
+    for block in _blocks(body):
+        blocks.append(_parse_block(block, line, source))
+        line += block.count(b"\n")
+    values = np.concatenate(blocks)
+    if len(values) == 0:
         raise ReturnsError("no_returns", f"{source}: no LIDAR return after the header")
-    try:  # numpy's C parser: fast on long lists; the slow scan only names a bad line
-        values = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
-    except ValueError:
-        raise ReturnsError("invalid_returns", f"{source}: {_bad_line(lines)}") from None
-    if values.shape[1] != 3:
-        raise ReturnsError("invalid_returns", f"{source}: {_bad_line(lines)}")
     try:
         return check_returns(values)
     except ReturnsError as exc:
         raise ReturnsError(exc.code, f"{source}: {exc}") from None
 
 
+def _blocks(body: bytes) -> Iterator[bytes]:
+    """``body`` in pieces of about ``CSV_BLOCK_BYTES``, each of whole lines."""
+    at = 0
+    while at < len(body):
+        end = body.find(b"\n", at + CSV_BLOCK_BYTES)
+        end = len(body) if end == -1 else end + 1
+        yield body[at:end]
+        at = end
+
+
+def _text(data: bytes, line: int, source: str) -> str:
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ReturnsError("not_text", f"{source}: not UTF-8 text from line {line}") from None
+
+
+def _parse_block(block: bytes, first_line: int, source: str) -> np.ndarray:
+    """The (n, 3) float64 returns of whole CSV lines, the first of them line ``first_line``."""
+    text = _text(block, first_line, source)
+    try:
+        values = np.loadtxt(io.StringIO(text), delimiter=",", ndmin=2, dtype=np.float64)
+    except ValueError:  # numpy's C parser: fast; the slow scan below only names a bad line
+        raise ReturnsError("invalid_returns", f"{source}: {_bad_line(text, first_line)}") from None
+    if values.size == 0:
+        return np.empty((0, 3))
+    if values.shape[1] != 3:
+        raise ReturnsError("invalid_returns", f"{source}: {_bad_line(text, first_line)}")
+    return values
+
+
+def _bad_line(text: str, first_line: int) -> str:
+    """Which line of ``text`` is not three numbers, and why."""
+    for number, line in enumerate(text.splitlines(), start=first_line):
+        if not line.strip():
+            continue
+        fields = line.split(",")
+        problem = (
+            f"{len(fields)} values"
+            if len(fields) != 3
+            else next((f"{f.strip()!r} is not a number" for f in fields if not _number(f)), None)
+        )
+        if problem:
+            return f"line {number}: expected row,col,z_m numbers, got {line[:80]!r} ({problem})"
+    return "expected row,col,z_m numbers on every line"
+
+
+def _number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def read_returns_csv(path: str | Path) -> np.ndarray:
     """float32 (N, 3) returns of a CSV file (``parse_returns_csv``; errors start with the
     file's path); ``OSError`` if it cannot be read."""
     path = Path(path)
-    return parse_returns_csv(path.read_text(), str(path))
+    return parse_returns_csv(path.read_bytes(), str(path))
 
 
 def write_returns_csv(path: str | Path, returns: np.ndarray) -> None:

@@ -25,10 +25,6 @@ class Pose:
     t: np.ndarray
 
     @classmethod
-    def identity(cls) -> Pose:
-        return cls(np.eye(3), np.zeros(3))
-
-    @classmethod
     def from_matrix(cls, T: np.ndarray) -> Pose:
         """From a 4 x 4 homogeneous transform (target -> camera)."""
         return cls(np.array(T[:3, :3], np.float64), np.array(T[:3, 3], np.float64))

@@ -9,21 +9,25 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import onnxruntime as ort
 
 from sdcnet import __version__
 from sdcnet.camera import PAPER_CAMERA, Intrinsics
+from sdcnet.pipeline import WORK_PIXELS
 
-INPUTS = ("gray", "sparse")
-OUTPUTS = ("depth", "foreground")
+INPUTS = ("gray", "sparse", "focal_px")
+OUTPUTS = ("depth", "foreground", "sigma")
 #: What each tensor holds, in the file's metadata (``/model`` shows it).
 TENSORS = {
     "gray": "float32 (B, 1, H, W) in [0, 1]: 8-bit / 255 or 16-bit / 65535",
     "sparse": "float32 (B, 1, H, W) LIDAR camera-frame Z in metres, 0 = no return",
+    "focal_px": "float32 (B, 1, 1, 1) focal length in pixels of the grid gray and sparse are on",
     "depth": "float32 (B, 1, H, W) camera-frame Z, metres (valid on the foreground)",
     "foreground": "float32 (B, 1, H, W) probability that a pixel is spacecraft",
+    "sigma": "float32 (B, 1, H, W) the depth's uncertainty, metres: |error| <= sigma for 68 %",
 }
 PREFERRED_PROVIDERS = ("CUDAExecutionProvider", "CPUExecutionProvider")
 #: Session option: whether idle intra-op threads spin-wait for work ("1") or sleep ("0").
@@ -34,23 +38,25 @@ class ModelLoadError(RuntimeError):
     """The model file is missing, unreadable, not ONNX, or not an sdcnet model."""
 
 
-def model_metadata(
+def metadata_props(
     version: str,
     stride: int,
     factor: int = 1,
+    work_pixels: int = WORK_PIXELS,
     metrics: dict | None = None,
     extra: dict[str, str] | None = None,
 ) -> dict[str, str]:
     """The metadata_props an sdcnet ONNX file carries: what ``OnnxModel`` reads (version, the
-    paper camera's intrinsics at its training size, the crop ``stride`` in pixels, the
-    ``factor`` of its internal resolution) and what ``/model`` shows (metrics, tensors)."""
+    default camera's intrinsics (the paper's), the input ``stride`` in pixels, the ``factor``
+    of its internal resolution, the ``work_pixels`` per frame it was trained and timed for)
+    and what ``/model`` shows (metrics, tensors)."""
     meta = {
         "sdcnet_version": __version__,
         "model_version": version,
         "intrinsics": json.dumps(PAPER_CAMERA.intrinsics().as_dict()),
-        "training_size": str(PAPER_CAMERA.width),
         "stride": str(stride),
         "factor": str(factor),
+        "work_pixels": str(work_pixels),
         "metrics": json.dumps(metrics or {}),
         "inputs": json.dumps({name: TENSORS[name] for name in INPUTS}),
         "outputs": json.dumps({name: TENSORS[name] for name in OUTPUTS}),
@@ -59,19 +65,23 @@ def model_metadata(
     return meta
 
 
+def provider_name(requested: str) -> str:
+    """onnxruntime's name of an execution provider given in short ("cpu", "cuda",
+    "tensorrt", "openvino") or in full ("TensorrtExecutionProvider"), in any case; a name
+    onnxruntime does not know comes back as given."""
+    key = requested.strip().lower().removesuffix("executionprovider")
+    known = {
+        name.lower().removesuffix("executionprovider"): name for name in ort.get_all_providers()
+    }
+    return known.get(key, requested)
+
+
 def choose_providers(requested: str | None = None) -> list[str]:
-    """Execution providers to use: ``requested`` alone (must be available), else CUDA then CPU."""
+    """Execution providers to use: ``requested`` alone (``provider_name``; it must be
+    available here), else CUDA then CPU."""
     available = ort.get_available_providers()
     if requested:
-        name = (
-            requested
-            if requested.endswith("ExecutionProvider")
-            else f"{requested.upper()}ExecutionProvider"
-        )
-        name = {
-            "CUDAEXECUTIONPROVIDER": "CUDAExecutionProvider",
-            "CPUEXECUTIONPROVIDER": "CPUExecutionProvider",
-        }.get(name.upper(), name)
+        name = provider_name(requested)
         if name not in available:
             raise ModelLoadError(
                 f"execution provider {requested!r} is not available here; available: {available}"
@@ -88,7 +98,7 @@ class ModelInfo:
     intrinsics: Intrinsics
     stride: int
     factor: int
-    training_size: int
+    work_pixels: int
     metrics: dict
     raw: dict[str, str]
 
@@ -109,14 +119,42 @@ def _info(session: ort.InferenceSession, path: Path) -> ModelInfo:
         intrinsics=Intrinsics(**json.loads(meta["intrinsics"])),
         stride=int(meta["stride"]),
         factor=int(meta.get("factor", 1)),
-        training_size=int(meta.get("training_size", 1024)),
+        work_pixels=int(meta.get("work_pixels", WORK_PIXELS)),
         metrics=json.loads(meta.get("metrics", "{}")),
         raw=dict(meta),
     )
 
 
+class Runtime(Protocol):
+    """An sdcnet model loaded under an inference runtime, as the service uses it: ``run`` is
+    the pipeline's model callable, ``info`` what the file says about itself, ``provider``
+    where it runs, ``threads`` its intra-op threads, ``platform`` the runtime and file format
+    in KServe's words (``onnxruntime_onnx``, ``tensorrt_plan``, ``openvino``...)."""
+
+    path: Path
+    info: ModelInfo
+    provider: str
+    threads: int
+    platform: str
+
+    @property
+    def stride(self) -> int:
+        """Pixels the input's height and width must be multiples of."""
+        ...
+
+    def run(
+        self, gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(B, 1, h, w) float32 gray in [0, 1] and sparse metres, (B, 1, 1, 1) focal length in
+        pixels -> depth (m), probability, sigma (m)."""
+        ...
+
+
 class OnnxModel:
-    """An sdcnet ONNX model loaded once; ``run`` is the pipeline's model callable."""
+    """An sdcnet ONNX model loaded once under onnxruntime (a ``Runtime``); ``run`` is the
+    pipeline's model callable."""
+
+    platform = "onnxruntime_onnx"
 
     def __init__(
         self,
@@ -135,6 +173,12 @@ class OnnxModel:
         options.inter_op_num_threads = 1
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         options.add_session_config_entry(SPIN_WAIT, "1" if spin_wait else "0")
+        # onnxruntime's CPU arena keeps what the largest inference grew; the pipeline feeds
+        # every frame at a fixed budget of working pixels, so that is one frame's activations,
+        # reused by the next frame. Without the arena glibc keeps the freed blocks instead, and
+        # shrinking it after every run costs time: both hold more memory, not less
+        # (docs/development.md, "Measurements").
+        options.enable_cpu_mem_arena = True
         try:
             self.session = ort.InferenceSession(
                 str(path), options, providers=choose_providers(provider)
@@ -150,9 +194,14 @@ class OnnxModel:
 
     @property
     def stride(self) -> int:
+        """Pixels the input's height and width must be multiples of."""
         return self.info.stride
 
-    def run(self, gray: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(B, 1, h, w) float32 gray in [0, 1] and sparse metres -> depth (m), probability."""
-        depth, prob = self.session.run(list(OUTPUTS), {"gray": gray, "sparse": sparse})
-        return depth, prob
+    def run(
+        self, gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(B, 1, h, w) float32 gray in [0, 1] and sparse metres, (B, 1, 1, 1) focal length in
+        pixels -> depth (m), probability, sigma (m): the pipeline's model callable."""
+        feeds = {"gray": gray, "sparse": sparse, "focal_px": focal_px}
+        depth, prob, sigma = self.session.run(list(OUTPUTS), feeds)
+        return depth, prob, sigma

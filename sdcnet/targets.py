@@ -10,7 +10,6 @@ once, here.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +32,6 @@ class Target:
     vertices: np.ndarray  # (V, 3) float32, target frame, metres
     faces: np.ndarray  # (F, 3) int32
     model: TargetModel
-    prepare_s: float  # seconds its preparation took
 
     @property
     def longest_m(self) -> float:
@@ -60,16 +58,8 @@ def prepare_target(
     config: RegistrationConfig = DEFAULT_CONFIG,
 ) -> Target:
     """A target from a triangle mesh already in its frame, metres."""
-    started = time.perf_counter()
     model = TargetModel(vertices, faces, config)
-    return Target(
-        name,
-        file,
-        np.asarray(vertices, np.float32),
-        np.asarray(faces, np.int32),
-        model,
-        time.perf_counter() - started,
-    )
+    return Target(name, file, np.asarray(vertices, np.float32), np.asarray(faces, np.int32), model)
 
 
 def load_target(entry: MeshEntry, config: RegistrationConfig = DEFAULT_CONFIG) -> Target:

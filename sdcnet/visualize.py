@@ -34,6 +34,11 @@ def dilated_returns(sparse: np.ndarray, radius: int = 3, near=None, far=None) ->
 
 
 def gray_bgr(gray: np.ndarray) -> np.ndarray:
+    """A gray image as 8-bit BGR for a picture: 8 bits as they are; 12 and 16 bits stretched so
+    that the 99.9th percentile is white (a 12-bit image in 0-4095 would look black)."""
+    if gray.dtype != np.uint8:
+        top = max(float(np.percentile(gray, 99.9)), 1.0)
+        gray = np.clip(gray.astype(np.float32) * (255 / top), 0, 255).astype(np.uint8)
     return cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
 
 

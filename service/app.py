@@ -17,8 +17,9 @@ from typing import Any
 from fastapi import FastAPI
 
 from sdcnet import __version__
-from sdcnet.runtime import ModelLoadError, OnnxModel
+from sdcnet.runtime import ModelLoadError, OnnxModel, Runtime
 from sdcnet.service.admission import Admission
+from sdcnet.service.camera import ServiceCamera, configured_camera
 from sdcnet.service.errors import install_error_handlers
 from sdcnet.service.inference import Engine, self_test
 from sdcnet.service.metrics import ServiceMetrics
@@ -42,7 +43,7 @@ Every error, whatever its status, is `{"error": {"code": ..., "message": ...}}`
 """
 
 
-def load_model(settings: Settings) -> OnnxModel:
+def load_model(settings: Settings) -> Runtime:
     """The ONNX model the settings name, checked by one inference on a small frame; raises
     ``ModelLoadError`` with a clear message, so that a file that loads but cannot serve stops
     the start-up rather than failing every request."""
@@ -87,12 +88,14 @@ def complete_openapi(app: FastAPI) -> None:
 
 def create_app(
     settings: Settings | None = None,
-    model: OnnxModel | None = None,
+    model: Runtime | None = None,
     targets: dict[str, Target] | None = None,
+    camera: ServiceCamera | None = None,
 ) -> FastAPI:
     """The service. ``settings`` default to the environment; ``model`` (already loaded)
     defaults to loading ``settings.model_path`` at start-up, ``targets`` (already prepared)
-    to preparing those of ``settings.targets``."""
+    to preparing those of ``settings.targets``, ``camera`` (already loaded) to loading
+    ``settings.camera``."""
     settings = settings or Settings()
     service_metrics = ServiceMetrics()
 
@@ -115,6 +118,7 @@ def create_app(
             settings.max_in_flight,
         )
         app.state.targets = configured_targets(settings) if targets is None else targets
+        app.state.camera = configured_camera(settings) if camera is None else camera
         app.state.engine = Engine(loaded)
         yield
         app.state.engine = None  # not ready while shutting down
@@ -129,15 +133,9 @@ def create_app(
     app.state.metrics = service_metrics
     app.state.engine = None
     app.state.targets = {}
+    app.state.camera = None
     install_error_handlers(app)
-    app.add_middleware(
-        Admission,
-        metrics=service_metrics,
-        max_in_flight=settings.max_in_flight,
-        max_upload_bytes=settings.max_upload_bytes,
-        retry_after_s=settings.retry_after_s,
-        body_timeout_s=settings.body_timeout_s,
-    )
+    app.add_middleware(Admission, metrics=service_metrics, settings=settings, routers=ROUTERS)
     for router in ROUTERS:
         app.include_router(router)
     complete_openapi(app)

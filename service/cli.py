@@ -1,7 +1,7 @@
 """``sdc-serve``: the inference service under uvicorn. Flags override ``SDCNET_*`` variables.
 
-The model (and the targets) are loaded before the server starts, so a missing or broken file
-is one clear line and exit status 2, not a traceback.
+The camera file, the model and the targets are loaded before the server starts, so a missing
+or broken file is one clear line and exit status 2, not a traceback.
 """
 
 from __future__ import annotations
@@ -16,10 +16,14 @@ from pathlib import Path
 import uvicorn
 from pydantic import ValidationError
 
+from sdcnet.calibration import CalibrationError
 from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.runtime import ModelLoadError
 from sdcnet.service.app import create_app, load_model
+from sdcnet.service.budget import budget
+from sdcnet.service.camera import configured_camera
 from sdcnet.service.pose import configured_targets
+from sdcnet.service.protocol import with_head_timeout
 from sdcnet.service.settings import Settings
 from sdcnet.targets import TargetError
 
@@ -52,16 +56,42 @@ FLAGS = [
     ("--provider", "provider", str),
     ("--threads", "threads", int),
     ("--targets", "targets", Path),
+    ("--camera", "camera", Path),
     ("--spin-wait", "spin_wait", str),  # true / false, parsed by the settings
     ("--host", "host", str),
     ("--port", "port", int),
     ("--max-in-flight", "max_in_flight", int),
+    ("--max-requests", "max_requests", int),
+    ("--queue-timeout", "queue_timeout_s", float),
     ("--retry-after", "retry_after_s", int),
     ("--max-pixels", "max_pixels", int),
+    ("--max-returns", "max_returns", int),
     ("--max-upload-bytes", "max_upload_bytes", int),
     ("--body-timeout", "body_timeout_s", float),
+    ("--min-rate", "min_rate", float),
+    ("--request-timeout", "request_timeout_s", float),
+    ("--head-timeout", "head_timeout_s", float),
+    ("--keep-alive", "keep_alive_s", int),
     ("--log-level", "log_level", str),
 ]
+
+
+#: Bytes of a request head at most (uvicorn's h11_max_incomplete_event_size, its default made
+#: explicit): a head is a few hundred bytes; a larger one gets 400 from uvicorn.
+MAX_HEAD_BYTES = 16 * 2**10
+
+
+def connection_limits(settings: Settings) -> dict:
+    """uvicorn's arguments for how connections are held: the head deadline of
+    ``sdcnet.service.protocol`` (uvicorn has none), its own keep-alive timeout and head size
+    bound, and no ``Server`` header (it names the software to a client that has no use for
+    it)."""
+    return {
+        "http": with_head_timeout(settings.head_timeout_s),
+        "timeout_keep_alive": settings.keep_alive_s,
+        "h11_max_incomplete_event_size": MAX_HEAD_BYTES,
+        "server_header": False,
+    }
 
 
 def _help(setting: str) -> str:
@@ -101,7 +131,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def serve(args: argparse.Namespace) -> int:
-    """Load the model, then serve until stopped; 2 with one line for a bad setting or model."""
+    """Load the camera, the model and the targets, then serve until stopped; 2 with one line
+    for a bad setting or file."""
     limit_malloc_arenas()
     given = {setting: getattr(args, setting) for _, setting, _ in FLAGS}
     try:
@@ -113,19 +144,22 @@ def serve(args: argparse.Namespace) -> int:
         level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     try:
+        camera = configured_camera(settings)
         model = load_model(settings)
         targets = configured_targets(settings)
-    except (ModelLoadError, TargetError) as exc:
+    except (CalibrationError, ModelLoadError, TargetError) as exc:
         print(f"sdc-serve: {exc}", file=sys.stderr)
         return 2
     logger.info("execution provider: %s (%d threads)", model.provider, model.threads)
+    logger.info(budget(settings).describe(settings))
     try:
         uvicorn.run(
-            create_app(settings, model, targets),
+            create_app(settings, model, targets, camera),
             host=settings.host,
             port=settings.port,
             log_level=settings.log_level,
             timeout_graceful_shutdown=10,
+            **connection_limits(settings),
         )
     except SystemExit as exc:  # uvicorn exits 3 when it cannot listen (its log says why)
         if exc.code:

@@ -2,43 +2,56 @@
 sparse map or as a list.
 
 Every check answers with an ``ApiError`` (a 4xx and a stable code) and nothing here can crash
-on hostile bytes: sizes are read from headers and checked before anything is decoded, images
-are decoded by OpenCV (``cv2.imdecode``, IMREAD_UNCHANGED) only for the four formats accepted,
-and ``.npy`` files are loaded with ``allow_pickle=False`` after their header says they hold
-plain floats. The checks on arrays (``frame_of``) are the ones the Open Inference Protocol's
-tensors go through too (``sdcnet.service.v2``).
+on hostile bytes: sizes are read from headers and checked against the limits and the frame
+(``InputLimits``: the gray image's declared size bounds the sparse map and the returns)
+before anything is decoded or parsed, images are decoded by OpenCV (``cv2.imdecode``,
+IMREAD_UNCHANGED) only for the four formats accepted, ``.npy`` data are read in place
+(never unpickled) once their header says they hold plain floats, and a CSV of returns is
+parsed a block at a time once its lines are counted. Messages are the service's own: a
+library's words (and its hints on how to lift a limit) stay out of them. The checks on arrays
+(``frame_of``) are the ones the Open Inference Protocol's tensors go through too
+(``sdcnet.service.v2``).
 """
 
 from __future__ import annotations
 
-import io
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from sdcnet.camera import Intrinsics
+from sdcnet.formats import FormatError, npy
+from sdcnet.formats.image_header import ImageHeader, check_decoding_work, read_header
+from sdcnet.formats.sparse import depth_from_png16, sparse_format
 from sdcnet.pipeline import to_gray
 from sdcnet.returns import ReturnsError, dense_from_returns, parse_returns_csv
-from sdcnet.service.errors import ApiError
-from sdcnet.service.image_header import (
-    PNG_SIGNATURE,
-    HeaderError,
-    ImageHeader,
-    UnknownFormatError,
-    check_decoding_work,
-    read_header,
-)
+from sdcnet.service.errors import ApiError, format_error
 from sdcnet.service.schemas import ResponseFormat
 
-NPY_MAGIC = b"\x93NUMPY"
 _GRAY_DTYPES = (np.uint8, np.uint16)
+
+
+@dataclass(frozen=True)
+class InputLimits:
+    """How large a request's inputs may be: ``max_pixels`` per image, ``max_returns`` per
+    list of returns (and never more than the frame's pixels)."""
+
+    max_pixels: int
+    max_returns: int
+
+    def returns_for(self, width: int, height: int) -> int:
+        """Returns a list may hold in a ``width`` x ``height`` frame."""
+        return min(self.max_returns, width * height)
 
 
 @dataclass(frozen=True)
 class CompletionRequest:
     """The fields of one ``POST /complete``: file bytes (``sparse`` or ``returns``, one of
-    the two), intrinsics in pixels (``None`` = the model's, scaled), the answer's format."""
+    the two), intrinsics in pixels (``None`` = the model's, scaled), ``max_sigma`` in metres
+    (``None``: no limit), the answer's format."""
 
     gray: bytes
     sparse: bytes | None = None
@@ -49,6 +62,7 @@ class CompletionRequest:
     cx: float | None = None
     cy: float | None = None
     outlier_removal: bool = False
+    max_sigma: float | None = None
     format: ResponseFormat = ResponseFormat.json
 
 
@@ -56,7 +70,9 @@ class CompletionRequest:
 class Frame:
     """One request's validated inputs, whatever protocol brought them: gray uint8/uint16
     (H, W); sparse float32 (H, W) metres, 0 = no return, at least one return; intrinsics in
-    pixels, ``None`` = the model's, scaled to the image."""
+    pixels, ``None`` = the default: ``camera``, the configured camera's at the frame's size
+    (``sdcnet.service.camera``), else the model's, scaled to the image; ``max_sigma``, metres:
+    points whose depth's uncertainty is above it leave the cloud (``None``: no limit)."""
 
     gray: np.ndarray
     sparse: np.ndarray
@@ -65,10 +81,26 @@ class Frame:
     cx: float | None = None
     cy: float | None = None
     outlier_removal: bool = False
+    max_sigma: float | None = None
+    camera: Intrinsics | None = None
 
 
-def decode_form(req: CompletionRequest, max_pixels: int) -> Frame:
-    """The frame of a ``POST /complete`` form: image bytes, and a sparse map or returns."""
+def check_max_sigma(max_sigma: float | None) -> float | None:
+    """``max_sigma`` (metres) when it is a positive finite number or ``None``, else 422
+    ``invalid_max_sigma``: the one check of every route."""
+    if max_sigma is None or (math.isfinite(max_sigma) and max_sigma > 0):
+        return max_sigma
+    raise ApiError(
+        422,
+        "invalid_max_sigma",
+        f"max_sigma must be a positive finite number of metres, got {max_sigma!r}",
+    )
+
+
+def decode_form(req: CompletionRequest, limits: InputLimits) -> Frame:
+    """The frame of a ``POST /complete`` form: image bytes, and a sparse map or returns; the
+    sizes of both are checked against the image's declared size before either is decoded."""
+    max_sigma = check_max_sigma(req.max_sigma)
     if (req.sparse is None) == (req.returns is None):
         given = "both" if req.sparse is not None else "neither"
         raise ApiError(
@@ -83,27 +115,37 @@ def decode_form(req: CompletionRequest, max_pixels: int) -> Frame:
             "invalid_request",
             "depth_scale applies to 16-bit PNG sparse maps only; returns hold metres",
         )
-    gray = decode_gray(req.gray, max_pixels)
+    _not_empty("gray", req.gray)
+    header = _header("gray", req.gray, limits.max_pixels)
     if req.sparse is not None:
-        sparse = decode_sparse(req.sparse, req.depth_scale, max_pixels)
+        frame = (header.width, header.height)
+        sparse = decode_sparse(req.sparse, req.depth_scale, limits.max_pixels, frame)
+        gray = decode_gray(req.gray, limits.max_pixels, header)
         check_same_size(gray, sparse)
     else:
-        sparse = sparse_from_returns(decode_returns(req.returns, max_pixels), gray.shape)
-    return Frame(gray, sparse, req.fx, req.fy, req.cx, req.cy, req.outlier_removal)
+        most = limits.returns_for(header.width, header.height)
+        returns = decode_returns(req.returns, most, (header.width, header.height))
+        gray = decode_gray(req.gray, limits.max_pixels, header)
+        sparse = sparse_from_returns(returns, gray.shape)
+    return Frame(
+        gray, sparse, req.fx, req.fy, req.cx, req.cy, req.outlier_removal, max_sigma=max_sigma
+    )
 
 
 def frame_of(
     gray: np.ndarray,
     sparse: np.ndarray | None,
     returns: np.ndarray | None,
-    max_pixels: int,
+    limits: InputLimits,
     **options,
 ) -> Frame:
     """The frame of arrays already in memory (Open Inference Protocol tensors): gray uint8 or
     uint16 (H, W), and a float32 sparse map (H, W) or float32 returns (N, 3), checked as the
-    form's files are; ``options`` are ``Frame``'s intrinsics and ``outlier_removal``."""
+    form's files are; ``options`` are ``Frame``'s intrinsics, ``outlier_removal`` and
+    ``max_sigma``."""
+    check_max_sigma(options.get("max_sigma"))
     height, width = gray.shape
-    _too_large("gray", width, height, max_pixels)
+    _too_large("gray", width, height, limits.max_pixels)
     if sparse is not None:
         check_same_size(gray, sparse)
         check_depths(sparse)
@@ -131,15 +173,10 @@ def _header(field: str, data: bytes, max_pixels: int) -> ImageHeader:
     """The image's header, checked against the pixel limit and for decoding work beyond it."""
     try:
         header = read_header(data)
-    except UnknownFormatError as exc:
-        raise ApiError(415, "unsupported_media_type", f"{field}: {exc}") from exc
-    except HeaderError as exc:
-        raise ApiError(400, "unreadable_file", f"{field}: {exc}") from exc
-    _too_large(field, header.width, header.height, max_pixels)
-    try:
+        _too_large(field, header.width, header.height, max_pixels)
         check_decoding_work(data, header)
-    except HeaderError as exc:
-        raise ApiError(400, "unreadable_file", f"{field}: {exc}") from exc
+    except FormatError as exc:
+        raise format_error(exc, field) from exc
     return header
 
 
@@ -157,10 +194,11 @@ def _imdecode(field: str, data: bytes, header: ImageHeader) -> np.ndarray:
     return image
 
 
-def decode_gray(data: bytes, max_pixels: int) -> np.ndarray:
-    """PNG/TIFF/JPEG/BMP bytes -> uint8 or uint16 (H, W); colour is converted to gray."""
+def decode_gray(data: bytes, max_pixels: int, header: ImageHeader | None = None) -> np.ndarray:
+    """PNG/TIFF/JPEG/BMP bytes -> uint8 or uint16 (H, W); colour is converted to gray.
+    ``header``: the image's, when already read and checked (``_header``)."""
     _not_empty("gray", data)
-    header = _header("gray", data, max_pixels)
+    header = header or _header("gray", data, max_pixels)
     image = _imdecode("gray", data, header)
     if image.dtype not in _GRAY_DTYPES:
         raise ApiError(
@@ -169,26 +207,33 @@ def decode_gray(data: bytes, max_pixels: int) -> np.ndarray:
     return to_gray(image)
 
 
-def decode_sparse(data: bytes, depth_scale: float | None, max_pixels: int) -> np.ndarray:
+def decode_sparse(
+    data: bytes,
+    depth_scale: float | None,
+    max_pixels: int,
+    frame: tuple[int, int] | None = None,
+) -> np.ndarray:
     """``.npy`` (float32/float64 metres) or 16-bit PNG (times ``depth_scale`` metres per unit)
-    bytes -> float32 (H, W) metres, 0 = no return; values checked."""
+    bytes -> float32 (H, W) metres, 0 = no return; values checked. ``frame``: the gray
+    image's (width, height), which the header's size must be, checked before decoding."""
     _not_empty("sparse", data)
-    if data.startswith(NPY_MAGIC):
+    kind = sparse_format(data)
+    if kind == "npy":
         if depth_scale is not None:
             raise ApiError(
                 422,
                 "invalid_request",
                 "depth_scale applies to 16-bit PNG sparse maps only; a .npy holds metres",
             )
-        sparse = _npy(data, max_pixels)
-    elif data.startswith(PNG_SIGNATURE):
+        sparse = _npy(data, max_pixels, frame)
+    elif kind == "png":
         if depth_scale is None:
             raise ApiError(
                 422,
                 "invalid_request",
                 "a 16-bit PNG sparse map needs the depth_scale form field (metres per unit)",
             )
-        sparse = _png_depth(data, depth_scale, max_pixels)
+        sparse = _png_depth(data, depth_scale, max_pixels, frame)
     else:
         raise ApiError(
             415,
@@ -200,58 +245,43 @@ def decode_sparse(data: bytes, depth_scale: float | None, max_pixels: int) -> np
     return sparse
 
 
-def _npy_floats(field: str, data: bytes, check_shape: Callable[[tuple], None]) -> np.ndarray:
-    """float32 array of ``.npy`` bytes of float32/float64 values, never unpickled;
-    ``check_shape(shape)`` runs on the header's shape before the data is read."""
-    stream = io.BytesIO(data)
+def _npy_floats(
+    field: str, data: bytes, check_shape: Callable[[tuple[int, ...]], None]
+) -> np.ndarray:
+    """``sdcnet.formats.npy.read_floats``, its errors answered in the service's shape."""
     try:
-        major, _ = np.lib.format.read_magic(stream)
-        read = (
-            np.lib.format.read_array_header_1_0
-            if major == 1
-            else np.lib.format.read_array_header_2_0
-        )
-        shape, _, dtype = read(stream)
-    except Exception as exc:  # numpy parses the header dict with tokenize/ast: any error type
-        raise ApiError(400, "unreadable_file", f"{field}: not a valid .npy header ({exc})") from exc
-    if dtype.hasobject:
-        raise ApiError(
-            400,
-            "pickle_not_allowed",
-            f"{field} .npy holds Python objects, which would need unpickling; this service "
-            "never unpickles: send float32 or float64 metres",
-        )
-    if dtype.kind != "f" or dtype.itemsize not in (4, 8):
-        raise ApiError(
-            422, "wrong_dtype", f"{field} .npy must hold float32 or float64 metres, got {dtype}"
-        )
-    check_shape(shape)
-    try:
-        array = np.load(io.BytesIO(data), allow_pickle=False)
-    except (ValueError, EOFError, OSError) as exc:
-        raise ApiError(
-            400, "unreadable_file", f"{field}: cannot read the .npy data (truncated?): {exc}"
-        ) from exc
-    return array.astype(np.float32)
+        return npy.read_floats(data, field, check_shape)
+    except FormatError as exc:
+        raise format_error(exc) from None
 
 
-def _npy(data: bytes, max_pixels: int) -> np.ndarray:
+def _npy(data: bytes, max_pixels: int, frame: tuple[int, int] | None) -> np.ndarray:
     def dense_map(shape: tuple) -> None:
         if len(shape) != 2:
             raise ApiError(
                 422, "wrong_shape", f"sparse .npy must be 2-D (height, width), got shape {shape}"
             )
         _too_large("sparse", shape[1], shape[0], max_pixels)
+        if frame is not None:
+            _same_size(frame, (shape[1], shape[0]))
 
     return _npy_floats("sparse", data, dense_map)
 
 
-def decode_returns(data: bytes, max_pixels: int) -> np.ndarray:
+def decode_returns(data: bytes, most: int, frame: tuple[int, int]) -> np.ndarray:
     """``.npy`` (N, 3) float32/float64 or CSV text (header ``row,col,z_m``) bytes -> the
-    returns as float32 (N, 3): row, column (pixel indices), Z metres; at most ``max_pixels``
-    of them. Checked against the frame by ``sparse_from_returns``."""
+    returns as float32 (N, 3): row, column (pixel indices), Z metres; at most ``most`` of
+    them, counted before they are parsed (a ``frame`` = (width, height) holds that many).
+    Checked against the frame by ``sparse_from_returns``."""
     _not_empty("returns", data)
-    if data.startswith(NPY_MAGIC):
+    width, height = frame
+    too_many = ApiError(
+        413,
+        "too_large",
+        f"more than {most} returns, the most this service takes for a {width} x {height} "
+        "frame (at most one per pixel, and max_returns)",
+    )
+    if sparse_format(data) == "npy":
 
         def return_list(shape: tuple) -> None:
             if len(shape) != 2 or shape[1] != 3:
@@ -260,26 +290,22 @@ def decode_returns(data: bytes, max_pixels: int) -> np.ndarray:
                     "wrong_shape",
                     f"returns .npy must be (N, 3): row, col, z_m; got shape {shape}",
                 )
-            if shape[0] > max_pixels:
-                raise ApiError(
-                    413, "too_large", f"{shape[0]} returns, above this service's {max_pixels}"
-                )
+            if shape[0] > most:
+                raise too_many
 
         return _npy_floats("returns", data, return_list)
     try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise ApiError(
-            415,
-            "unsupported_media_type",
-            "returns must be a .npy file of (N, 3) float32/float64 or a CSV text file with the "
-            "header row,col,z_m",
-        ) from None
-    if text.count("\n") > max_pixels + 1:
-        raise ApiError(413, "too_large", f"more than {max_pixels} returns in the CSV")
-    try:
-        return parse_returns_csv(text, "returns")
+        return parse_returns_csv(data, "returns", most)
     except ReturnsError as exc:
+        if exc.code == "too_many_returns":
+            raise too_many from None
+        if exc.code == "not_text":
+            raise ApiError(
+                415,
+                "unsupported_media_type",
+                "returns must be a .npy file of (N, 3) float32/float64 or a CSV text file "
+                "(UTF-8) with the header row,col,z_m",
+            ) from None
         raise ApiError(422, exc.code, str(exc)) from None
 
 
@@ -292,17 +318,17 @@ def sparse_from_returns(returns: np.ndarray, shape: tuple[int, int]) -> np.ndarr
         raise ApiError(422, exc.code, str(exc)) from None
 
 
-def _png_depth(data: bytes, depth_scale: float, max_pixels: int) -> np.ndarray:
+def _png_depth(
+    data: bytes, depth_scale: float, max_pixels: int, frame: tuple[int, int] | None
+) -> np.ndarray:
     header = _header("sparse", data, max_pixels)
+    if frame is not None:
+        _same_size(frame, (header.width, header.height))
     image = _imdecode("sparse", data, header)
-    if image.dtype != np.uint16 or image.ndim != 2:
-        channels = 1 if image.ndim == 2 else image.shape[2]
-        raise ApiError(
-            422,
-            "wrong_dtype",
-            f"a sparse PNG must be single-channel 16-bit, got {channels}-channel {image.dtype}",
-        )
-    return image.astype(np.float32) * np.float32(depth_scale)
+    try:
+        return depth_from_png16(image, depth_scale)
+    except FormatError as exc:
+        raise format_error(exc) from None
 
 
 def check_depths(sparse: np.ndarray) -> None:
@@ -325,10 +351,15 @@ def check_depths(sparse: np.ndarray) -> None:
 
 def check_same_size(gray: np.ndarray, sparse: np.ndarray) -> None:
     """Gray and sparse must be pixel-aligned: the same height and width."""
-    if gray.shape != sparse.shape:
+    _same_size((gray.shape[1], gray.shape[0]), (sparse.shape[1], sparse.shape[0]))
+
+
+def _same_size(gray: tuple[int, int], sparse: tuple[int, int]) -> None:
+    """Gray's and sparse's (width, height) must be the same."""
+    if gray != sparse:
         raise ApiError(
             422,
             "wrong_shape",
-            f"gray is {gray.shape[1]} x {gray.shape[0]} but sparse is "
-            f"{sparse.shape[1]} x {sparse.shape[0]} (width x height): they must match",
+            f"gray is {gray[0]} x {gray[1]} but sparse is {sparse[0]} x {sparse[1]} (width x "
+            "height): they must match",
         )

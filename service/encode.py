@@ -1,35 +1,40 @@
-"""Answer bodies of ``POST /complete`` in its three formats.
+"""Answer bodies of ``POST /complete`` in its three formats, written into a ``Spool``.
 
-Encoding happens in two steps so that the body can carry its own timings: ``encode`` turns
-the arrays into bytes (the costly part, timed as the "encode" phase), ``finish`` adds the
-summary (a few hundred bytes of JSON) and returns the body.
+Encoding happens in two steps so that the body can carry its own timings: ``encode`` writes
+the arrays (the costly part, timed as the "encode" phase), ``finish`` adds the summary (a few
+hundred bytes) and closes the body. Nothing is built whole in memory: arrays go out from their
+own buffers a slice at a time, so an answer costs the memory of its arrays and of one slice
+(``SLICE_BYTES``), whatever its size; the spool keeps 2 MiB in memory and the rest on disk.
 
 - json: ``CompletionResponse``, arrays as base64 of their ``.npy`` bytes (exact round trip);
+  the arrays (depth, mask, points, sigma) come first, then the summary's fields;
 - npz: a zip (stored, not deflated: speed over size) of ``depth.npy``, ``mask.npy``,
-  ``points.npy`` and ``meta.json`` (the summary), read by ``numpy.load``;
-- ply: the point cloud alone, binary little-endian, the summary's essentials as comments.
+  ``points.npy``, ``sigma.npy`` and ``meta.json`` (the summary), read by ``numpy.load``;
+- ply: the point cloud alone, binary little-endian, each vertex x, y, z and its sigma
+  (float32, metres), the summary's essentials as comments.
 """
 
 from __future__ import annotations
 
 import base64
 import io
+import json
 import zipfile
-from dataclasses import dataclass
-from typing import Protocol
+from collections.abc import Iterator
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from sdcnet.npyio import npy_bytes
-from sdcnet.pointcloud import ply_bytes
-from sdcnet.service.schemas import (
-    CompletionResponse,
-    CompletionSummary,
-    EncodedArray,
-    ResponseFormat,
-)
+from sdcnet.pointcloud import ply_header, ply_vertices
+from sdcnet.service.schemas import CompletionSummary, FrameSummary, ResponseFormat
+from sdcnet.service.spool import Spool
+
+if TYPE_CHECKING:
+    from sdcnet.service.inference import Completed
 
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+#: Bytes of an array encoded at a time (a multiple of 3, so that base64 slices join).
+SLICE_BYTES = 3 * 2**18
 MEDIA_TYPES = {
     ResponseFormat.json: "application/json",
     ResponseFormat.npz: "application/octet-stream",
@@ -37,71 +42,115 @@ MEDIA_TYPES = {
 }
 
 
-def encoded_array(array: np.ndarray) -> EncodedArray:
-    return EncodedArray(
-        dtype=str(array.dtype),
-        shape=list(array.shape),
-        npy_base64=base64.b64encode(npy_bytes(array)).decode("ascii"),
-    )
+def npy_header(array: np.ndarray) -> bytes:
+    """The ``.npy`` header (format 1.0) of a C-contiguous ``array``: its file is this, then
+    the array's bytes."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, np.lib.format.header_data_from_array_1_0(array))
+    return header.getvalue()
+
+
+def array_slices(array: np.ndarray, size: int = SLICE_BYTES) -> Iterator[memoryview]:
+    """The bytes of a C-contiguous ``array``, ``size`` at a time, without a copy."""
+    flat = memoryview(array).cast("B") if array.size else memoryview(b"")
+    for start in range(0, len(flat), size):
+        yield flat[start : start + size]
+
+
+def write_base64(spool: Spool, pieces: Iterator[bytes | memoryview]) -> None:
+    """Base64 of the concatenated ``pieces`` into ``spool``, a slice at a time."""
+    carry = b""
+    for piece in pieces:
+        if carry:
+            need = 3 - len(carry)
+            carry += bytes(piece[:need])
+            piece = piece[need:]
+            if len(carry) < 3:
+                continue
+            spool.write(base64.b64encode(carry))
+        whole = len(piece) - len(piece) % 3
+        for start in range(0, whole, SLICE_BYTES):
+            spool.write(base64.b64encode(piece[start : min(start + SLICE_BYTES, whole)]))
+        carry = bytes(piece[whole:])
+    spool.write(base64.b64encode(carry))
 
 
 class Encoded(Protocol):
-    def finish(self, summary: CompletionSummary) -> bytes: ...
+    def finish(self, summary: CompletionSummary) -> None: ...
 
 
-@dataclass
 class _Json:
-    arrays: dict[str, EncodedArray]
+    def __init__(self, arrays: dict[str, np.ndarray], spool: Spool):
+        self.spool = spool
+        for k, (name, array) in enumerate(arrays.items()):
+            array = np.ascontiguousarray(array)
+            head = {"dtype": str(array.dtype), "shape": list(array.shape)}
+            opening = "{" if k == 0 else ", "
+            spool.write(f'{opening}"{name}": {json.dumps(head)[:-1]}, "npy_base64": "'.encode())
+            write_base64(spool, iter([npy_header(array), *array_slices(array)]))
+            spool.write(b'"}')
 
-    def finish(self, summary: CompletionSummary) -> bytes:
-        return CompletionResponse(**dict(summary), **self.arrays).model_dump_json().encode()
+    def finish(self, summary: CompletionSummary) -> None:
+        self.spool.write(b", " + summary.model_dump_json().encode()[1:])
 
 
 class _Npz:
     """The zip is written as the arrays stream into it (``numpy.lib.format.write_array``
-    straight into each member): no ``.npy`` copy of a 4 MiB depth map is made first."""
+    straight into each member, 16 MiB at a time)."""
 
-    def __init__(self, arrays: dict[str, np.ndarray]):
-        self.buffer = io.BytesIO()
-        self.zip = zipfile.ZipFile(self.buffer, "w", zipfile.ZIP_STORED)
+    def __init__(self, arrays: dict[str, np.ndarray], spool: Spool):
+        self.zip = zipfile.ZipFile(spool.file, "w", zipfile.ZIP_STORED)
         for name, array in arrays.items():
             member = zipfile.ZipInfo(f"{name}.npy", _ZIP_EPOCH)
             with self.zip.open(member, "w", force_zip64=array.nbytes > 2**31) as out:
                 np.lib.format.write_array(out, np.ascontiguousarray(array), allow_pickle=False)
 
-    def finish(self, summary: CompletionSummary) -> bytes:
+    def finish(self, summary: CompletionSummary) -> None:
         self.zip.writestr(zipfile.ZipInfo("meta.json", _ZIP_EPOCH), summary.model_dump_json())
         self.zip.close()
-        return self.buffer.getvalue()
 
 
-@dataclass
+#: The per-vertex properties of a PLY answer after x, y, z (float32, metres).
+PLY_PROPERTIES = ("sigma",)
+
+
 class _Ply:
-    points: np.ndarray
+    """The vertices are interleaved (x, y, z, sigma) a slice of ``SLICE_BYTES`` at a time."""
 
-    def finish(self, summary: CompletionSummary) -> bytes:
-        return ply_bytes(self.points, ply_comments(summary))
+    def __init__(self, points: np.ndarray, sigma: np.ndarray, frame: FrameSummary, spool: Spool):
+        spool.write(ply_header(len(points), ply_comments(frame), PLY_PROPERTIES))
+        step = max(1, SLICE_BYTES // (4 * (3 + len(PLY_PROPERTIES))))
+        for start in range(0, len(points), step):
+            rows = ply_vertices(points[start : start + step], (sigma[start : start + step],))
+            spool.write(memoryview(rows).cast("B"))
+
+    def finish(self, summary: CompletionSummary) -> None:
+        pass  # the header said all there is to say
 
 
-def ply_comments(summary: CompletionSummary) -> list[str]:
+def ply_comments(frame: FrameSummary) -> list[str]:
     """Header comments of a PLY answer: frame, units and provenance."""
-    k = summary.intrinsics
+    k = frame.intrinsics
     return [
         "sdcnet point cloud: camera frame (x right, y down, z forward), metres",
-        f"model_version {summary.model_version}",
-        f"provider {summary.provider}",
-        f"image {summary.width} x {summary.height}, fx {k.fx:.3f} fy {k.fy:.3f} "
+        "sigma: the depth's 1-sigma uncertainty, metres",
+        f"model_version {frame.model_version}",
+        f"provider {frame.provider}",
+        f"image {frame.width} x {frame.height}, fx {k.fx:.3f} fy {k.fy:.3f} "
         f"cx {k.cx:.3f} cy {k.cy:.3f}",
-        f"outliers_removed {summary.outliers_removed}",
+        f"outliers_removed {frame.outliers_removed}",
+        f"uncertain_removed {frame.uncertain_removed}",
     ]
 
 
-def encode(fmt: ResponseFormat, depth: np.ndarray, mask: np.ndarray, points: np.ndarray) -> Encoded:
-    """Serialise the arrays for ``fmt``: depth float32 (H, W) metres, mask uint8 (H, W),
-    points float32 (N, 3) metres."""
-    arrays = {"depth": depth, "mask": mask, "points": points}
+def encode(fmt: ResponseFormat, done: Completed, frame: FrameSummary, spool: Spool) -> Encoded:
+    """Write the arrays of a completed frame for ``fmt`` into ``spool``: depth float32 (H, W)
+    metres, mask uint8 (H, W), points float32 (N, 3) metres, sigma float32 (H, W) metres (PLY:
+    each point's); ``frame``: the summary without timings (the PLY header's)."""
+    if fmt is ResponseFormat.ply:
+        return _Ply(done.points, done.point_sigma, frame, spool)
+    mask = done.mask.view(np.uint8)
+    arrays = {"depth": done.depth, "mask": mask, "points": done.points, "sigma": done.sigma}
     if fmt is ResponseFormat.json:
-        return _Json({name: encoded_array(array) for name, array in arrays.items()})
-    if fmt is ResponseFormat.npz:
-        return _Npz(arrays)
-    return _Ply(points)
+        return _Json(arrays, spool)
+    return _Npz(arrays, spool)

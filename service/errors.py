@@ -17,6 +17,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
+from sdcnet.formats import FormatError
 from sdcnet.service.schemas import ErrorBody, ErrorDetail, ErrorInfo, V2ErrorBody
 
 #: Paths under this prefix are the Open Inference Protocol's: its error shape.
@@ -32,6 +33,15 @@ _STATUS_CODES = {
     408: "request_timeout",
     413: "too_large",
     415: "unsupported_media_type",
+}
+#: Status of each code of ``sdcnet.formats.FormatError``.
+_FORMAT_STATUS = {
+    "unsupported_media_type": 415,
+    "unreadable_file": 400,
+    "pickle_not_allowed": 400,
+    "wrong_dtype": 422,
+    "wrong_shape": 422,
+    "invalid_request": 422,
 }
 _LOCATIONS = {"body": "form", "query": "query", "path": "path", "header": "header"}
 _LOCATION_NAMES = {"form": "form field", "query": "query parameter", "path": "path parameter"}
@@ -54,6 +64,13 @@ class ApiError(HTTPException):
         super().__init__(status_code=status, detail=message, headers=dict(headers or {}))
         self.code = code
         self.message = message
+
+
+def format_error(exc: FormatError, field: str | None = None) -> ApiError:
+    """The answer to bytes that are not their format (4xx, the error's code); its message
+    starts with ``field`` when given."""
+    message = str(exc) if field is None else f"{field}: {exc}"
+    return ApiError(_FORMAT_STATUS[exc.code], exc.code, message)
 
 
 def error_response(
@@ -152,7 +169,7 @@ ERROR_RESPONSES: dict[int | str, dict] = {
         413: "image above the pixel limit or body above the byte limit",
         415: "file type not accepted",
         422: "invalid, unknown or repeated field: dtype, shape, depth values, missing field, "
-        "unknown format",
+        "unknown format, a frame that does not fit the camera",
         503: "overloaded or not ready; Retry-After says when to retry",
     }.items()
 }

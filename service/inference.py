@@ -19,14 +19,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sdcnet.camera import Intrinsics
+from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.compact import mask_window
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
-from sdcnet.runtime import ModelLoadError, OnnxModel
-from sdcnet.service.decode import CompletionRequest, Frame, decode_form
-from sdcnet.service.encode import encode
-from sdcnet.service.schemas import CameraIntrinsics, CompletionSummary, FrameSummary, Timings
+from sdcnet.runtime import ModelLoadError, Runtime
+from sdcnet.service.camera import ServiceCamera, camera_frame
+from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
+from sdcnet.service.encode import MEDIA_TYPES, encode
+from sdcnet.service.errors import ApiError
+from sdcnet.service.schemas import (
+    CameraIntrinsics,
+    CompletionSummary,
+    FrameSummary,
+    ResponseFormat,
+    Timings,
+)
+from sdcnet.service.spool import Spool, SpooledResponse
 
 PHASES = ("decode", "queue", "inference", "encode")
 SELF_TEST_SIZE = 64  # pixels, side of the frame the model completes once at start-up
@@ -35,7 +44,8 @@ SELF_TEST_SIZE = 64  # pixels, side of the frame the model completes once at sta
 #: The ``Server-Timing`` header of an inference answer, for the routes' OpenAPI declarations.
 SERVER_TIMING_HEADER = {
     "Server-Timing": {
-        "description": "milliseconds per phase: decode, queue, inference, encode",
+        "description": "milliseconds per phase: decode, queue (for the model), inference, "
+        "encode, and wait (for an in-flight place, before decode)",
         "required": True,
         "schema": {"type": "string"},
     }
@@ -69,27 +79,31 @@ class PhaseTimer:
 
 
 class Engine:
-    """The model, loaded once, run one request at a time: onnxruntime already spreads one
+    """The model, loaded once, run one request at a time: the runtime already spreads one
     inference over all its intra-op threads, so running two at once only makes both slower."""
 
-    def __init__(self, model: OnnxModel):
+    def __init__(self, model: Runtime):
         self.model = model
         self._lock = threading.Lock()
 
     def complete(
-        self, gray: np.ndarray, sparse: np.ndarray, zoom: float, timer: PhaseTimer
+        self, gray: np.ndarray, sparse: np.ndarray, focal_px: float, timer: PhaseTimer
     ) -> Completion:
-        """Complete a frame, its crop resampled by ``zoom`` to the model's pixel scale."""
+        """Complete a frame of a camera of focal length ``focal_px`` (pixels), on the model's
+        working-pixel budget (``sdcnet.pipeline``)."""
         with timer("queue"):
             self._lock.acquire()
         try:
             with timer("inference"):
-                return complete(self.model.run, gray, sparse, self.model.stride, zoom=zoom)
+                info = self.model.info
+                return complete(
+                    self.model.run, gray, sparse, focal_px, info.stride, info.work_pixels
+                )
         finally:
             self._lock.release()
 
 
-def self_test(model: OnnxModel) -> None:
+def self_test(model: Runtime) -> None:
     """Complete one small synthetic frame (``SELF_TEST_SIZE`` px, one LIDAR return at 100 m)
     through the service's own pipeline; raises ``ModelLoadError`` when that fails.
 
@@ -100,29 +114,42 @@ def self_test(model: OnnxModel) -> None:
     sparse = np.zeros_like(gray, dtype=np.float32)
     sparse[SELF_TEST_SIZE // 2, SELF_TEST_SIZE // 2] = 100.0
     try:
-        result = complete(model.run, gray, sparse, model.stride)
+        result = complete(model.run, gray, sparse, 1000.0, model.stride, model.info.work_pixels)
     except Exception as exc:  # onnxruntime and numpy raise many types; all mean "cannot serve"
         raise ModelLoadError(
             f"{model.path} loads but cannot complete a {SELF_TEST_SIZE} x {SELF_TEST_SIZE} "
             f"test frame, so it would fail every request: {type(exc).__name__}: {exc}"
         ) from exc
-    if result.depth.dtype != np.float32:
-        raise ModelLoadError(f"{model.path} answers {result.depth.dtype} depth, not float32")
+    for name, array in (("depth", result.depth), ("sigma", result.sigma)):
+        if array is None or array.dtype != np.float32:
+            kind = "no" if array is None else array.dtype
+            raise ModelLoadError(f"{model.path} answers {kind} {name}, not float32")
 
 
 @dataclass
 class Completed:
     """One completed frame, before any protocol serialises it: depth float32 (H, W) metres,
-    mask bool (H, W), points float32 (N, 3) metres, the region the network saw (everything
-    outside it is 0), the intrinsics used and the summary's counts."""
+    mask bool (H, W), sigma float32 (H, W) metres (the depth's 1-sigma uncertainty, 0 off the
+    mask), points float32 (N, 3) metres of the ``kept`` pixels (bool (H, W)), the region the
+    network saw (everything outside it is 0), the intrinsics used, the summary's counts and
+    the sigma above which points left the cloud (metres; ``None``: no limit)."""
 
     depth: np.ndarray
     mask: np.ndarray
+    sigma: np.ndarray
     points: np.ndarray
+    kept: np.ndarray
     region: Region
     intrinsics: Intrinsics
     returns: int
     outliers_removed: int
+    uncertain_removed: int
+    sigma_limit: float | None
+
+    @functools.cached_property
+    def point_sigma(self) -> np.ndarray:
+        """float32 (N,) metres: each point's sigma, in the order of ``points``."""
+        return self.sigma[self.kept]
 
     @functools.cached_property
     def window(self) -> tuple[int, int, int, int]:
@@ -130,7 +157,7 @@ class Completed:
         and mask are 0 (``sdcnet.compact.mask_window``, searched within the region)."""
         return mask_window(self.mask[self.region.slices], self.region.y0, self.region.x0)
 
-    def frame_summary(self, model: OnnxModel) -> FrameSummary:
+    def frame_summary(self, model: Runtime) -> FrameSummary:
         """The frame's summary without timings (``POST /pose``'s ``completion``)."""
         K = self.intrinsics
         return FrameSummary(
@@ -143,17 +170,21 @@ class Completed:
             foreground_px=int(np.count_nonzero(self.mask)),
             point_count=len(self.points),
             outliers_removed=self.outliers_removed,
+            uncertain_removed=self.uncertain_removed,
         )
 
-    def summary(self, model: OnnxModel, timer: PhaseTimer) -> CompletionSummary:
+    def summary(self, model: Runtime, timer: PhaseTimer) -> CompletionSummary:
         """The completion protocols' summary: the frame's, and the timings."""
         return CompletionSummary(**dict(self.frame_summary(model)), timings=timer.timings())
 
 
 def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Frame) -> Intrinsics:
-    """The request's intrinsics; each value not given is the model's, scaled to the image."""
-    base = default.scaled(width, height)
-    return Intrinsics(
+    """The request's intrinsics; each value not given is the configured camera's
+    (``frame.camera``, at the image's size), else the model's ``default`` scaled to the
+    image. 422 ``invalid_intrinsics`` for values that cannot describe the frame
+    (``sdcnet.camera.check_intrinsics``, the one check of every route)."""
+    base = frame.camera or default.scaled(width, height)
+    K = Intrinsics(
         base.fx if frame.fx is None else frame.fx,
         base.fy if frame.fy is None else frame.fy,
         base.cx if frame.cx is None else frame.cx,
@@ -161,65 +192,98 @@ def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Fram
         width,
         height,
     )
+    try:
+        return check_intrinsics(K)
+    except IntrinsicsError as exc:
+        raise ApiError(422, "invalid_intrinsics", str(exc)) from None
 
 
-#: Widest resampling to the model's pixel scale (model fx / image fx) the service applies.
-MAX_ZOOM = 4.0
-
-
-def pixel_scale(model_fx: float, fx: float, pixels: int, max_pixels: int) -> float:
-    """How much to resample the crop so its pixels match the model's (model fx / image fx),
-    kept within [1/MAX_ZOOM, MAX_ZOOM] and so that the resampled frame stays under
-    ``max_pixels``: odd intrinsics degrade the answer, never the service."""
-    zoom = model_fx / fx
-    return float(np.clip(zoom, 1 / MAX_ZOOM, min(MAX_ZOOM, (max_pixels / pixels) ** 0.5)))
+def sigma_limit(
+    sigma: np.ndarray, valid: np.ndarray, max_sigma: float | None, quantile: float | None
+) -> float | None:
+    """The sigma (metres) above which a point leaves the cloud: ``max_sigma`` when given,
+    else, with a ``quantile`` (0..1), that quantile of the ``valid`` pixels' sigma (the
+    frame's own scale: 0.9 leaves the 10 % most uncertain out), else none."""
+    if max_sigma is not None or quantile is None or not valid.any():
+        return max_sigma
+    return float(np.quantile(sigma[valid], quantile))
 
 
 def complete_frame(
     engine: Engine,
     frame: Frame,
-    max_pixels: int,
     timer: PhaseTimer,
     cloud_phase: str = "encode",
+    sigma_quantile: float | None = None,
 ) -> Completed:
     """Complete a validated frame (queue, inference) and back-project its points (timed as
-    ``cloud_phase``, with the optional outlier removal): what every protocol answers from,
-    and what ``POST /pose`` registers."""
+    ``cloud_phase``): the pixels whose sigma is within ``sigma_limit`` (the frame's
+    ``max_sigma``, else its ``sigma_quantile`` when given), then the optional outlier removal
+    on those. What every protocol answers from, and what ``POST /pose`` registers."""
     height, width = frame.gray.shape
     K = request_intrinsics(engine.model.info.intrinsics, width, height, frame)
-    zoom = pixel_scale(engine.model.info.intrinsics.fx, K.fx, width * height, max_pixels)
-    result = engine.complete(frame.gray, frame.sparse, zoom, timer)
+    result = engine.complete(frame.gray, frame.sparse, K.fx, timer)
     with timer(cloud_phase):
-        valid = result.mask & (result.depth > 0)
-        kept = statistical_outliers(result.depth, valid, K) if frame.outlier_removal else valid
-        points = back_project(result.depth, kept, K)
+        depth, sigma = result.depth, result.sigma
+        valid = result.mask & (depth > 0)
+        limit = sigma_limit(sigma, valid, frame.max_sigma, sigma_quantile)
+        trusted = valid if limit is None else valid & (sigma <= limit)
+        kept = statistical_outliers(depth, trusted, K) if frame.outlier_removal else trusted
+        points = back_project(depth, kept, K)
+        trusted_count = int(np.count_nonzero(trusted))
     return Completed(
-        depth=result.depth,
+        depth=depth,
         mask=result.mask,
+        sigma=sigma,
         points=points,
+        kept=kept,
         region=result.region,
         intrinsics=K,
         returns=int(np.count_nonzero(frame.sparse)),
-        outliers_removed=int(np.count_nonzero(valid)) - len(points),
+        outliers_removed=trusted_count - len(points),
+        uncertain_removed=int(np.count_nonzero(valid)) - trusted_count,
+        sigma_limit=limit,
     )
 
 
 @dataclass(frozen=True)
 class Answer:
-    """An answer's body, its extra headers and the time each phase took."""
+    """What every inference route answers: its body (spooled), media type and extra headers,
+    the time each phase took and the phases its ``Server-Timing`` names."""
 
-    body: bytes
+    body: Spool
     timer: PhaseTimer
     headers: dict[str, str] = field(default_factory=dict)
     media_type: str = "application/octet-stream"
+    phases: tuple[str, ...] = PHASES
+
+    def response(self) -> SpooledResponse:
+        """The answer to send, its ``Server-Timing`` first among its headers."""
+        headers = {"Server-Timing": self.timer.server_timing(self.phases), **self.headers}
+        return SpooledResponse(self.body, self.media_type, headers)
 
 
-def answer(engine: Engine, req: CompletionRequest, max_pixels: int) -> Answer:
-    """Decode, complete, encode one ``POST /complete``; raises ``ApiError`` for bad input."""
+def answer(
+    engine: Engine,
+    req: CompletionRequest,
+    limits: InputLimits,
+    camera: ServiceCamera | None = None,
+) -> Answer:
+    """Decode (into the ``camera``'s frame), complete, encode one ``POST /complete``; raises
+    ``ApiError`` for bad input."""
     timer = PhaseTimer()
     with timer("decode"):
-        frame = decode_form(req, max_pixels)
-    done = complete_frame(engine, frame, max_pixels, timer)
-    with timer("encode"):
-        encoded = encode(req.format, done.depth, done.mask.astype(np.uint8), done.points)
-    return Answer(encoded.finish(done.summary(engine.model, timer)), timer)
+        frame = camera_frame(decode_form(req, limits), camera)
+    done = complete_frame(engine, frame, timer)
+    spool = Spool()
+    try:
+        with timer("encode"):
+            encoded = encode(req.format, done, done.frame_summary(engine.model), spool)
+        encoded.finish(done.summary(engine.model, timer))
+    except BaseException:
+        spool.close()
+        raise
+    headers = {}
+    if req.format is not ResponseFormat.json:
+        headers["Content-Disposition"] = f'attachment; filename="sdcnet.{req.format.value}"'
+    return Answer(spool, timer, headers, MEDIA_TYPES[req.format])

@@ -2,29 +2,40 @@
 known target registered to the completed cloud (``sdcnet.registration``), in a worker thread.
 
 decode (``service.decode.decode_form``: the same form, sparse map or returns list, as
-``POST /complete``) -> queue -> inference -> cloud (``service.inference.complete_frame``, the
-path every protocol shares, then the LIDAR returns back-projected too) -> registration. The
-target and ``init`` are checked before any image is decoded.
+``POST /complete``, then ``service.camera.camera_frame``) -> queue -> inference -> cloud
+(``service.inference.complete_frame``, the path every protocol shares, then the LIDAR returns
+back-projected too) -> registration. The target and ``init`` are checked before any image is
+decoded.
+
+The registration gets the points it can trust: those whose sigma (the depth's 1-sigma
+uncertainty) is within the request's ``max_sigma`` when it gives one, else within the
+frame's own ``POSE_SIGMA_QUANTILE`` of sigma, so that the most uncertain tenth (flying pixels
+between surfaces, far from any return) leaves the cloud whatever the scale of the frame. The
+LIDAR returns, measured, are all used.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 from dataclasses import dataclass
 
 import numpy as np
+from fastapi.responses import JSONResponse
 
 from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, parse_pose
-from sdcnet.service.decode import CompletionRequest, decode_form
+from sdcnet.service.camera import ServiceCamera, camera_frame
+from sdcnet.service.decode import CompletionRequest, InputLimits, decode_form
 from sdcnet.service.errors import ApiError
-from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
+from sdcnet.service.inference import Answer, Engine, PhaseTimer, complete_frame
 from sdcnet.service.pose_schemas import PoseAlternative, PoseResponse, PoseTimings, PoseValue
 from sdcnet.service.schemas import FrameSummary
 from sdcnet.service.settings import Settings
+from sdcnet.service.spool import Spool
 from sdcnet.targets import Target, load_targets
 
 logger = logging.getLogger("sdcnet.service")
@@ -63,16 +74,61 @@ def find_target(targets: dict[str, Target], name: str) -> Target:
     raise ApiError(404, "unknown_target", f"unknown target {name!r}; known targets: {known}")
 
 
+#: Longest ``init`` read, characters: a pose as the service writes it takes about 600.
+MAX_INIT_CHARS = 16 * 2**10
+#: Deepest nesting of ``init``: a pose's rotation matrix is a list of lists in an object (3).
+MAX_INIT_DEPTH = 4
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+
+
 def read_init(text: str | None) -> Pose | None:
-    """``init`` as a pose, or 422 ``invalid_init`` saying what is wrong with it."""
+    """``init`` as a pose, or 422 ``invalid_init`` saying what is wrong with it; its length
+    and nesting are checked before it is parsed."""
     if text is None:
         return None
-    try:
-        return parse_pose(json.loads(text))
+    if len(text) > MAX_INIT_CHARS:
+        raise ApiError(
+            422,
+            "invalid_init",
+            f"init holds {len(text)} characters, more than the {MAX_INIT_CHARS} a pose needs",
+        )
+    if _depth(text) > MAX_INIT_DEPTH:
+        raise ApiError(
+            422,
+            "invalid_init",
+            f"init is nested more than {MAX_INIT_DEPTH} levels deep: a pose is "
+            '{"R": 3 x 3, "t": 3} or {"quaternion_wxyz": 4, "t": 3}',
+        )
+    try:  # integers read as floats: a 5000-digit one is infinite, and refused as such
+        value = json.loads(text, parse_int=float, parse_constant=_not_a_number)
     except json.JSONDecodeError as exc:
-        raise ApiError(422, "invalid_init", f"init is not valid JSON: {exc}") from exc
+        raise ApiError(
+            422,
+            "invalid_init",
+            f"init is not valid JSON (line {exc.lineno}, column {exc.colno})",
+        ) from None
     except ValueError as exc:
-        raise ApiError(422, "invalid_init", f"init: {exc}") from exc
+        raise ApiError(422, "invalid_init", f"init: {exc}") from None
+    try:
+        return parse_pose(value)
+    except ValueError as exc:
+        raise ApiError(422, "invalid_init", f"init: {exc}") from None
+
+
+def _depth(text: str) -> int:
+    """How deep the arrays and objects of JSON ``text`` nest (its strings skipped)."""
+    depth = deepest = 0
+    for char in _JSON_STRING.sub('""', text):
+        if char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    return deepest
+
+
+def _not_a_number(name: str) -> float:
+    raise ValueError(f"{name} is not a number of JSON")
 
 
 def _pose_value(pose: Pose) -> PoseValue:
@@ -84,7 +140,11 @@ def _finite(value: float) -> float | None:
 
 
 def pose_response(
-    target: Target, estimate: PoseEstimate, completion: FrameSummary, timer: PhaseTimer
+    target: Target,
+    estimate: PoseEstimate,
+    completion: FrameSummary,
+    sigma_limit: float | None,
+    timer: PhaseTimer,
 ) -> PoseResponse:
     covariance = estimate.covariance
     finite = bool(np.all(np.isfinite(covariance)))
@@ -92,6 +152,8 @@ def pose_response(
         target=target.name,
         pose=_pose_value(estimate.pose),
         tracked=estimate.tracked,
+        verdict=estimate.verdict,
+        reasons=estimate.reasons,
         fitness=estimate.fitness,
         rmse_m=_finite(estimate.rmse_m),
         returns_rmse_m=None
@@ -112,6 +174,7 @@ def pose_response(
             for h in estimate.alternatives
         ],
         hypotheses=estimate.hypotheses,
+        sigma_limit_m=sigma_limit,
         completion=completion,
         timings=PoseTimings(
             **timer.milliseconds(POSE_PHASES),
@@ -122,18 +185,30 @@ def pose_response(
 
 
 POSE_PHASES = ("decode", "queue", "inference", "cloud", "registration")
+#: Without ``max_sigma``, the points whose sigma is above this quantile of the frame's are
+#: left out of the registration: the 10 % most uncertain, those whose leaving out must cut the
+#: depth's MAE of the rest by 30 % or more: the model's sigma is calibrated for that
+#: (docs/service.md).
+POSE_SIGMA_QUANTILE = 0.9
 
 
 def answer_pose(
-    engine: Engine, targets: dict[str, Target], req: PoseRequest, max_pixels: int
-) -> tuple[PoseResponse, PhaseTimer]:
-    """Check, complete, register one request; raises ``ApiError`` for bad input."""
+    engine: Engine,
+    targets: dict[str, Target],
+    req: PoseRequest,
+    limits: InputLimits,
+    camera: ServiceCamera | None = None,
+) -> Answer:
+    """Check, complete (in the ``camera``'s frame), register one request, its answer a
+    ``PoseResponse`` as JSON; raises ``ApiError`` for bad input."""
     target = find_target(targets, req.target)
     init = read_init(req.init)
     timer = PhaseTimer()
     with timer("decode"):
-        frame = decode_form(req.frame, max_pixels)
-    done = complete_frame(engine, frame, max_pixels, timer, cloud_phase="cloud")
+        frame = camera_frame(decode_form(req.frame, limits), camera)
+    done = complete_frame(
+        engine, frame, timer, cloud_phase="cloud", sigma_quantile=POSE_SIGMA_QUANTILE
+    )
     with timer("cloud"):
         returns = back_project(frame.sparse, frame.sparse > 0, done.intrinsics)
     with timer("registration"):
@@ -144,4 +219,7 @@ def answer_pose(
                 422, exc.code, f"the completed cloud cannot be registered to {target.name}: {exc}"
             ) from exc
     completion = done.frame_summary(engine.model)
-    return pose_response(target, estimate, completion, timer), timer
+    response = pose_response(target, estimate, completion, done.sigma_limit, timer)
+    spool = Spool()
+    spool.write(JSONResponse(response.model_dump()).body)  # Starlette's JSON rendering
+    return Answer(spool, timer, media_type="application/json", phases=POSE_PHASES)

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, Field
 
+from sdcnet.registration import REASONS
 from sdcnet.service.schemas import FrameSummary, FrameTimings
 
 
@@ -43,7 +46,19 @@ class PoseResponse(BaseModel):
     target: str
     pose: PoseValue
     tracked: bool = Field(
-        description="refined from `init` (false: found from scratch, or `init` was lost)"
+        description="refined from `init` and still in its basin (false: found from scratch, "
+        "or the answer left `init`: see `reasons`)"
+    )
+    verdict: Literal["reliable", "ambiguous", "unreliable"] = Field(
+        description="reliable: use the pose as it is; ambiguous: plausible, but another pose "
+        "competes (see `alternatives`, `reasons`); unreliable: the frame does not support it"
+    )
+    reasons: list[str] = Field(
+        description="why the answer is not reliable (empty when it is): "
+        + "; ".join(
+            f"{code} ({'unreliable' if unreliable else 'ambiguous'}): {meaning}"
+            for code, (unreliable, meaning) in REASONS.items()
+        )
     )
     fitness: float = Field(
         description="share of the completed cloud within the inlier distance of the target"
@@ -67,10 +82,14 @@ class PoseResponse(BaseModel):
     translation_sigma_m: float | None = Field(description="t std along its worst axis")
     ambiguous: bool = Field(
         description="other poses explain the frame about as well (symmetric target): see "
-        "`alternatives`"
+        "`alternatives` (the reason symmetric_twins)"
     )
     alternatives: list[PoseAlternative]
     hypotheses: int = Field(description="poses refined to reach this answer")
+    sigma_limit_m: float | None = Field(
+        description="the completed points registered are those of sigma up to this, metres: "
+        "the request's max_sigma, else the frame's 90th percentile of sigma; null: no point"
+    )
     completion: FrameSummary = Field(description="the completed frame the pose comes from")
     timings: PoseTimings
 

@@ -12,8 +12,8 @@ class ResponseFormat(StrEnum):
     """How ``POST /complete`` answers."""
 
     json = "json"  # arrays as base64 of .npy bytes, in a JSON document
-    npz = "npz"  # one zip: depth.npy, mask.npy, points.npy, meta.json
-    ply = "ply"  # the point cloud alone, binary little-endian PLY
+    npz = "npz"  # one zip: depth.npy, mask.npy, points.npy, sigma.npy, meta.json
+    ply = "ply"  # the point cloud alone, binary little-endian PLY: x, y, z, sigma a vertex
 
 
 class ErrorDetail(BaseModel):
@@ -56,6 +56,30 @@ class CameraIntrinsics(BaseModel):
     cy: float = Field(description="principal point row, pixels")
 
 
+class SizedIntrinsics(CameraIntrinsics):
+    """Pinhole intrinsics and the image size they are for."""
+
+    width: int = Field(description="image width, pixels")
+    height: int = Field(description="image height, pixels")
+
+
+class CameraInfo(BaseModel):
+    """The camera of ``sdc-serve --camera``."""
+
+    source: str = Field(description="the camera file's name and form")
+    model: str = Field(
+        description="lens distortion model: pinhole (none), plumb_bob or rational_polynomial"
+    )
+    intrinsics: SizedIntrinsics = Field(
+        description="pinhole intrinsics at the calibrated size; scaled for a frame of another "
+        "size and the same aspect ratio"
+    )
+    distortion: list[float] = Field(
+        description="OpenCV's order: k1, k2, p1, p2[, k3[, k4, k5, k6]]; empty: none"
+    )
+    frame: str = Field(description="the frame answers are in")
+
+
 class FrameTimings(BaseModel):
     """Server-side time per phase of completing a frame, milliseconds."""
 
@@ -82,6 +106,10 @@ class FrameSummary(BaseModel):
     foreground_px: int = Field(description="pixels in the mask")
     point_count: int = Field(description="points in the cloud")
     outliers_removed: int = Field(description="points dropped by statistical outlier removal")
+    uncertain_removed: int = Field(
+        description="points left out for a sigma above max_sigma (POST /pose: or above the "
+        "frame's own limit)"
+    )
 
 
 class CompletionSummary(FrameSummary):
@@ -96,6 +124,9 @@ class CompletionResponse(CompletionSummary):
     depth: EncodedArray = Field(description="float32 (H, W) metres, 0 outside the mask")
     mask: EncodedArray = Field(description="uint8 (H, W), 1 = spacecraft")
     points: EncodedArray = Field(description="float32 (N, 3) camera frame, metres")
+    sigma: EncodedArray = Field(
+        description="float32 (H, W) metres: the depth's 1-sigma uncertainty, 0 outside the mask"
+    )
 
 
 class Liveness(BaseModel):
@@ -145,13 +176,26 @@ class ModelMetadata(BaseModel):
     version: str
     provider: str
     threads: int = Field(description="onnxruntime intra-op threads")
-    stride: int = Field(description="crops are aligned to this many pixels")
-    training_size: int = Field(description="image size the intrinsics refer to, pixels")
+    stride: int = Field(description="the network's input sides are padded to this many pixels")
+    work_pixels: int = Field(
+        description="pixels the network sees per frame, whatever the camera: the spacecraft's "
+        "crop is resampled to about this many (the fixed cost of a frame)"
+    )
     intrinsics: CameraIntrinsics = Field(
-        description="default intrinsics at training_size; scaled to each request's image size"
+        description="the paper's camera at 1024 x 1024: requests' default when no camera is "
+        "configured, scaled to each request's image size"
+    )
+    default_intrinsics: SizedIntrinsics = Field(
+        description="what a request without fx, fy, cx, cy gets: the camera's (sdc-serve "
+        "--camera), else the model's, at width x height; scaled to each request's image size"
+    )
+    camera: CameraInfo | None = Field(
+        default=None, description="the camera of sdc-serve --camera; null: none configured"
     )
     metrics: dict[str, Any] = Field(description="the model card's headline metrics")
-    limits: dict[str, int] = Field(description="max_pixels, max_upload_bytes, max_in_flight")
+    limits: dict[str, int] = Field(
+        description="max_pixels, max_returns, max_upload_bytes, max_in_flight, max_requests"
+    )
     targets: list[TargetInfo] = Field(
         default_factory=list, description="known targets of POST /pose (sdc-serve --targets)"
     )

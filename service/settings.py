@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Literal
 
 from fastapi import Request
-from pydantic import Field
+from pydantic import Field, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -40,7 +40,8 @@ class Settings(BaseSettings):
     )
     provider: str | None = Field(
         default=None,
-        description="onnxruntime execution provider: 'cpu', 'cuda' or a full provider name; "
+        description="onnxruntime execution provider, short ('cpu', 'cuda', 'tensorrt', "
+        "'openvino') or in full ('TensorrtExecutionProvider'); "
         "default: CUDA when onnxruntime-gpu and a GPU are present, else CPU",
     )
     threads: int = Field(
@@ -59,31 +60,93 @@ class Settings(BaseSettings):
         description="folder of known targets' meshes (STL, OBJ, PLY, glTF/GLB) with a "
         "manifest.json of {file, longest_m} entries, for POST /pose; default: none",
     )
+    camera: Path | None = Field(
+        default=None,
+        description="the camera's calibration file (OpenCV YAML/JSON/XML, ROS camera_info, or "
+        "JSON of fx, fy, cx, cy, width, height): the intrinsics requests default to, and the "
+        "lens distortion taken out of every frame; default: none, the model's camera",
+    )
     host: str = Field(default="127.0.0.1", description="address to bind")
     port: int = Field(default=8000, ge=0, le=65535, description="TCP port (0: any free port)")
     max_in_flight: int = Field(
-        default=4,
+        default=2,
         ge=1,
-        description="POST /complete requests admitted at once; more get 503 with Retry-After",
+        description="inference requests (POST /complete, v2 infer, POST /pose together) "
+        "decoded, completed and encoded at once, each within the memory budget; a received "
+        "request waits queue_timeout_s at most for a place, then gets 503 with Retry-After",
+    )
+    max_requests: int = Field(
+        default=16,
+        ge=1,
+        description="inference requests held at once in every phase (receiving their body, "
+        "waiting, in flight, sending their answer); more get 503 at once",
+    )
+    queue_timeout_s: float = Field(
+        default=0.25,
+        gt=0,
+        description="seconds a received request waits for an in-flight place before 503 "
+        "(shed early rather than answer late)",
     )
     retry_after_s: int = Field(
         default=1, ge=0, description="Retry-After seconds advertised on 503 answers"
     )
     max_pixels: int = Field(
-        default=4096 * 4096, ge=1, description="largest image (width x height) accepted"
+        default=2048 * 2048,
+        ge=1,
+        description="largest image (width x height) accepted: with max_upload_bytes, what "
+        "bounds a request's memory (docs/service.md, the memory budget)",
+    )
+    max_returns: int = Field(
+        default=2**20,
+        ge=1,
+        description="most LIDAR returns a list (returns field, v2 returns input) may hold, "
+        "counted before it is parsed; never more than the frame's pixels",
     )
     max_upload_bytes: int = Field(
-        default=256 * 2**20, ge=1, description="largest request body (bytes) accepted"
+        default=64 * 2**20, ge=1, description="largest request body (bytes) accepted"
     )
     body_timeout_s: float = Field(
         default=10.0,
         gt=0,
-        description="seconds a request body may stall between two chunks before 408 (a "
-        "stalled upload would otherwise hold one of the max_in_flight places for ever)",
+        description="seconds a request body may stall between two chunks before 408; also "
+        "the start-up allowance of min_rate, for bodies and answers",
+    )
+    min_rate: float = Field(
+        default=1 * 2**20,
+        gt=0,
+        description="bytes/s an inference request's body, and its answer, must average once "
+        "their first body_timeout_s are over: a slower upload gets 408, a slower reader is "
+        "disconnected",
+    )
+    request_timeout_s: float = Field(
+        default=120.0,
+        gt=0,
+        description="seconds an inference request may take from its head to the last byte of "
+        "its answer",
+    )
+    head_timeout_s: float = Field(
+        default=10.0,
+        gt=0,
+        description="seconds a connection has to send a complete request head, from its "
+        "opening or its previous answer; then it is closed (slowloris)",
+    )
+    keep_alive_s: int = Field(
+        default=5,
+        ge=1,
+        description="seconds an idle keep-alive connection is kept after an answer "
+        "(uvicorn's timeout_keep_alive)",
     )
     log_level: Literal["critical", "error", "warning", "info", "debug"] = Field(
         default="info", description="critical, error, warning, info or debug"
     )
+
+    @field_validator("max_requests")
+    @classmethod
+    def _holds_those_in_flight(cls, value: int, info: ValidationInfo) -> int:
+        in_flight = info.data.get("max_in_flight", 1)
+        if value < in_flight:
+            raise ValueError(f"must be at least max_in_flight ({in_flight}): it counts them too")
+        return value
 
 
 async def get_settings(request: Request) -> Settings:

@@ -10,11 +10,12 @@ with the request parameter ``binary_data_output``) follow the JSON header as raw
 
 Inputs: ``gray`` (UINT8 or UINT16, [H, W]) and either ``sparse`` (FP32, [H, W], metres, 0 = no
 return) or ``returns`` (FP32, [N, 3]: row, column, Z metres). Request parameters: ``fx``,
-``fy``, ``cx``, ``cy`` (pixels) and ``outlier_removal``. Outputs: ``depth`` (FP32, [H, W]),
-``mask`` (UINT8, [H, W]) and ``points`` (FP32, [N, 3]). sdcnet's own output parameters ask for
-the compact layouts of ``sdcnet.compact``: ``region`` (depth, mask: only the spacecraft's
-region, the smallest window holding the mask; the answer says where), ``bits`` (mask: 8
-pixels a byte) and ``fp16`` (depth: float16 residuals above ``depth_offset``).
+``fy``, ``cx``, ``cy`` (pixels), ``outlier_removal`` and ``max_sigma`` (metres). Outputs:
+``depth`` (FP32, [H, W]), ``mask`` (UINT8, [H, W]), ``points`` (FP32, [N, 3]) and ``sigma``
+(FP32, [H, W], metres). sdcnet's own output parameters ask for the compact layouts of
+``sdcnet.compact``: ``region`` (depth, mask, sigma: only the spacecraft's region, the
+smallest window holding the mask; the answer says where), ``bits`` (mask: 8 pixels a byte)
+and ``fp16`` (depth: float16 residuals above ``depth_offset``).
 
 The JSON header is validated by the pydantic models below (their JSON schema is the route's
 OpenAPI request body); tensors are checked for datatype, shape and byte counts before any array
@@ -27,27 +28,26 @@ from __future__ import annotations
 
 import json
 import math
+import uuid
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX
 from sdcnet.compact import crop, fp16_residuals, pack_mask
-from sdcnet.service.decode import Frame, frame_of
+from sdcnet.formats.v2 import DTYPES, HEADER_LENGTH
+from sdcnet.service.camera import ServiceCamera, camera_frame
+from sdcnet.service.decode import Frame, InputLimits, frame_of
 from sdcnet.service.deps import MODEL_NAME
+from sdcnet.service.encode import array_slices
 from sdcnet.service.errors import ApiError
 from sdcnet.service.inference import Answer, Completed, Engine, PhaseTimer, complete_frame
 from sdcnet.service.schemas import CompletionSummary
+from sdcnet.service.spool import Spool
+from sdcnet.service.v2_json import DataArray, JsonDataError, data_values, split_data
 
-HEADER_LENGTH = "Inference-Header-Content-Length"
-#: numpy type of each datatype the protocol's tensors use here; binary data is little-endian.
-DTYPES = {
-    "UINT8": np.dtype("u1"),
-    "UINT16": np.dtype("<u2"),
-    "FP16": np.dtype("<f2"),
-    "FP32": np.dtype("<f4"),
-}
 #: input name -> (datatypes it takes, shape it has: -1 = any size)
 INPUTS = {
     "gray": (("UINT8", "UINT16"), (-1, -1)),
@@ -55,7 +55,12 @@ INPUTS = {
     "returns": (("FP32",), (-1, 3)),
 }
 #: output name -> (datatype, shape) in the full-frame layout
-OUTPUTS = {"depth": ("FP32", (-1, -1)), "mask": ("UINT8", (-1, -1)), "points": ("FP32", (-1, 3))}
+OUTPUTS = {
+    "depth": ("FP32", (-1, -1)),
+    "mask": ("UINT8", (-1, -1)),
+    "points": ("FP32", (-1, 3)),
+    "sigma": ("FP32", (-1, -1)),
+}
 
 
 # -- the JSON header (request) ---------------------------------------------------------
@@ -68,25 +73,38 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
 
 
-#: Bounds of the intrinsics (pixels) that keep every point finite in float32: JSON, which
-#: answers may be sent in, has no infinity.
-FOCAL_RANGE = (1e-3, 1e9)
-PRINCIPAL_POINT_LIMIT = 1e6
-FocalLength = Annotated[float, Field(ge=FOCAL_RANGE[0], le=FOCAL_RANGE[1], allow_inf_nan=False)]
-Pixels = Annotated[
-    float, Field(ge=-PRINCIPAL_POINT_LIMIT, le=PRINCIPAL_POINT_LIMIT, allow_inf_nan=False)
+#: Intrinsics (pixels) are checked once the image's size is known, alike on every route
+#: (``sdcnet.camera.check_intrinsics``: 422 invalid_intrinsics); the schema states the part of
+#: it that does not depend on the size.
+FocalLength = Annotated[
+    float, Field(json_schema_extra={"exclusiveMinimum": 0, "maximum": MAX_FOCAL_PX})
 ]
+Pixels = float
+_FOV = f"{MAX_FIELD_OF_VIEW_DEG:g}"
 
 
 class InferParameters(_Strict):
     """Request parameters."""
 
-    fx: FocalLength | None = Field(None, description="focal length along x, pixels")
-    fy: FocalLength | None = Field(None, description="focal length along y, pixels")
-    cx: Pixels | None = Field(None, description="principal point column, pixels")
-    cy: Pixels | None = Field(None, description="principal point row, pixels")
+    fx: FocalLength | None = Field(
+        None, description=f"focal length along x, pixels (field of view < {_FOV} degrees)"
+    )
+    fy: FocalLength | None = Field(
+        None, description=f"focal length along y, pixels (field of view < {_FOV} degrees)"
+    )
+    cx: Pixels | None = Field(
+        None, description="principal point column, pixels, within half an image of it"
+    )
+    cy: Pixels | None = Field(
+        None, description="principal point row, pixels, within half an image of it"
+    )
     outlier_removal: bool = Field(
         False, description="statistical outlier removal on the point cloud (paper Fig. 7)"
+    )
+    max_sigma: Annotated[float, Field(json_schema_extra={"exclusiveMinimum": 0})] | None = Field(
+        None,
+        description="metres: points whose depth's 1-sigma uncertainty is above it are left "
+        "out of the point cloud; depth, mask and sigma stay whole",
     )
     binary_data_output: bool = Field(
         False, description="every output as binary data unless its own binary_data says no"
@@ -116,10 +134,13 @@ class BinaryOutputParameters(_Strict):
     )
 
 
-class DepthOutputParameters(BinaryOutputParameters):
+class RegionOutputParameters(BinaryOutputParameters):
     region: bool = Field(
         False, description="only the smallest window holding the mask, 0 outside (sdcnet)"
     )
+
+
+class DepthOutputParameters(RegionOutputParameters):
     fp16: bool = Field(
         False,
         description="FP16 residuals above the output parameter depth_offset (metres), -1 "
@@ -127,10 +148,7 @@ class DepthOutputParameters(BinaryOutputParameters):
     )
 
 
-class MaskOutputParameters(BinaryOutputParameters):
-    region: bool = Field(
-        False, description="only the smallest window holding the mask, 0 outside (sdcnet)"
-    )
+class MaskOutputParameters(RegionOutputParameters):
     bits: bool = Field(False, description="8 pixels a byte, numpy.packbits order (sdcnet)")
 
 
@@ -149,7 +167,13 @@ class PointsOutput(_Strict):
     parameters: BinaryOutputParameters | None = None
 
 
-RequestOutput = Annotated[DepthOutput | MaskOutput | PointsOutput, Field(discriminator="name")]
+class SigmaOutput(_Strict):
+    name: Literal["sigma"]
+    parameters: RegionOutputParameters | None = None
+
+
+AnyOutput = DepthOutput | MaskOutput | PointsOutput | SigmaOutput
+RequestOutput = Annotated[AnyOutput, Field(discriminator="name")]
 
 
 class InferenceRequest(_Strict):
@@ -159,7 +183,7 @@ class InferenceRequest(_Strict):
     parameters: InferParameters | None = None
     inputs: list[RequestInput] = Field(description="gray, and sparse or returns")
     outputs: list[RequestOutput] | None = Field(
-        None, description="depth, mask, points, each at most once (default: all three)"
+        None, description="depth, mask, points, sigma, each at most once (default: all four)"
     )
 
 
@@ -198,8 +222,10 @@ def _bad(message: str, code: str = "invalid_request", status: int = 400) -> ApiE
     return ApiError(status, code, message)
 
 
-def split_body(body: bytes, header_length: str | None) -> tuple[bytes, memoryview]:
-    """The JSON header and the binary data of a request body."""
+def split_body(
+    body: bytes | bytearray, header_length: str | None
+) -> tuple[bytes | bytearray, memoryview]:
+    """The JSON header and the binary data of a request body (without a copy of the body)."""
     if header_length is None:
         return body, memoryview(b"")
     try:
@@ -211,7 +237,7 @@ def split_body(body: bytes, header_length: str | None) -> tuple[bytes, memoryvie
             f"{HEADER_LENGTH} is {length} but the body holds {len(body)} bytes: the JSON "
             "header's length must be between 1 and the body's"
         )
-    return body[:length], memoryview(body)[length:]
+    return bytes(memoryview(body)[:length]), memoryview(body)[length:]
 
 
 def _validation_message(exc: ValidationError) -> str:
@@ -225,43 +251,36 @@ def _validation_message(exc: ValidationError) -> str:
     return "invalid inference request: " + "; ".join(problems)
 
 
-def parse_request(header: bytes) -> InferenceRequest:
+@dataclass(frozen=True)
+class ParsedRequest:
+    """A request's validated JSON header, its inputs' JSON data aside (``data`` of an input
+    is ``[k]``: ``arrays[k]`` holds its bytes; ``sdcnet.service.v2_json``)."""
+
+    request: InferenceRequest
+    arrays: list[DataArray]
+
+
+def parse_request(header: bytes | bytearray) -> ParsedRequest:
     try:
-        return InferenceRequest.model_validate_json(header)
+        split = split_data(header)
+    except JsonDataError as exc:
+        raise _bad(str(exc), exc.code) from None
+    try:
+        return ParsedRequest(InferenceRequest.model_validate_json(split.skeleton), split.arrays)
     except ValidationError as exc:
         raise _bad(_validation_message(exc)) from None
 
 
-#: What numpy made of JSON data that is not numbers of the right kind.
-_KINDS = {"b": "booleans", "U": "strings", "O": "mixed or ragged values", "f": "fractions"}
-
-
-def _from_json(name: str, data: list, datatype: str, shape: tuple[int, ...]) -> np.ndarray:
-    """The tensor of JSON ``data`` (flat or nested, row-major) as ``datatype``."""
-    dtype = DTYPES[datatype]
+def _from_json(
+    name: str, parsed: ParsedRequest, data: list, datatype: str, shape: tuple[int, ...]
+) -> np.ndarray:
+    """The tensor of an input's JSON ``data`` (flat or nested by rows, row-major) as
+    ``datatype``: its values counted against ``shape`` before they are parsed."""
+    (k,) = data  # split_data put every data array aside
     try:
-        values = np.asarray(data)
-    except ValueError:
-        raise _bad(f"input {name}: data is not a regular array of numbers") from None
-    if values.size != math.prod(shape):
-        raise _bad(
-            f"input {name}: data holds {values.size} values, shape {list(shape)} needs "
-            f"{math.prod(shape)}"
-        )
-    kinds = "iu" if dtype.kind == "u" else "iuf"
-    if values.size and values.dtype.kind not in kinds:
-        found = _KINDS.get(values.dtype.kind, "other values")
-        raise _bad(f"input {name}: data must hold {datatype} numbers, got {found}", "wrong_dtype")
-    if dtype.kind == "u" and values.size:
-        low, high = values.min(), values.max()
-        if low < 0 or high > np.iinfo(dtype).max:
-            raise _bad(
-                f"input {name}: {datatype} values lie in 0..{np.iinfo(dtype).max}, got "
-                f"{low}..{high}",
-                "wrong_dtype",
-                400,
-            )
-    return values.astype(dtype).reshape(shape)
+        return data_values(name, parsed.arrays[k], DTYPES[datatype], datatype, shape)
+    except JsonDataError as exc:
+        raise _bad(str(exc), exc.code) from None
 
 
 def _input_shape(inp: RequestInput) -> tuple[int, ...]:
@@ -279,30 +298,59 @@ def _input_shape(inp: RequestInput) -> tuple[int, ...]:
     return shape
 
 
-def input_tensors(request: InferenceRequest, binary: memoryview, max_pixels: int) -> dict:
-    """name -> array of every input, from its JSON data or its slice of the binary data."""
-    tensors: dict[str, np.ndarray] = {}
-    offset = 0
+def input_shapes(request: InferenceRequest, limits: InputLimits) -> dict[str, tuple[int, ...]]:
+    """name -> shape of every input, checked against the limits and against the gray image's
+    size (the returns it may have) before any value is read."""
+    shapes: dict[str, tuple[int, ...]] = {}
     for inp in request.inputs:
         if inp.name not in INPUTS:
             raise _bad(f"unknown input {inp.name!r}: the inputs are {', '.join(INPUTS)}")
-        if inp.name in tensors:
+        if inp.name in shapes:
             raise _bad(f"input {inp.name} is given twice")
-        shape = _input_shape(inp)
-        if inp.name != "returns" and shape[0] * shape[1] > max_pixels:
+        shape = shapes[inp.name] = _input_shape(inp)
+        if inp.name != "returns" and shape[0] * shape[1] > limits.max_pixels:
             raise _bad(
                 f"input {inp.name} is {shape[1]} x {shape[0]} = {shape[0] * shape[1]} pixels, "
-                f"above this service's limit of {max_pixels}",
+                f"above this service's limit of {limits.max_pixels}",
                 "too_large",
                 413,
             )
+    if "gray" not in shapes:
+        raise _bad("missing input gray (UINT8 or UINT16, [H, W])")
+    if ("sparse" in shapes) == ("returns" in shapes):
+        given = "both" if "sparse" in shapes else "neither"
+        raise _bad(
+            f"send the LIDAR returns once: input sparse (FP32 [H, W]) or returns (FP32 "
+            f"[N, 3]), not {given}"
+        )
+    if "returns" in shapes:
+        height, width = shapes["gray"]
+        most = limits.returns_for(width, height)
+        if shapes["returns"][0] > most:
+            raise _bad(
+                f"input returns holds {shapes['returns'][0]} returns, more than the {most} this "
+                f"service takes for a {width} x {height} frame (at most one per pixel, and "
+                "max_returns)",
+                "too_large",
+                413,
+            )
+    return shapes
+
+
+def input_tensors(parsed: ParsedRequest, binary: memoryview, limits: InputLimits) -> dict:
+    """name -> array of every input, from its JSON data or its slice of the binary data."""
+    shapes = input_shapes(parsed.request, limits)
+    tensors: dict[str, np.ndarray] = {}
+    offset = 0
+    for inp in parsed.request.inputs:
+        shape = shapes[inp.name]
         size = inp.parameters.binary_data_size if inp.parameters else None
         if size is not None and inp.data is not None:
             raise _bad(f"input {inp.name} has both data and binary_data_size: give one")
         if size is None and inp.data is None:
             raise _bad(f"input {inp.name} has no values: give data or binary_data_size")
         if size is None:
-            tensors[inp.name] = _from_json(inp.name, inp.data, inp.datatype, shape)
+            tensors[inp.name] = _from_json(inp.name, parsed, inp.data, inp.datatype, shape)
             continue
         dtype = DTYPES[inp.datatype]
         expected = math.prod(shape) * dtype.itemsize
@@ -326,28 +374,21 @@ def input_tensors(request: InferenceRequest, binary: memoryview, max_pixels: int
     return tensors
 
 
-def frame_of_request(request: InferenceRequest, binary: memoryview, max_pixels: int) -> Frame:
+def frame_of_request(parsed: ParsedRequest, binary: memoryview, limits: InputLimits) -> Frame:
     """The validated frame of a parsed request and its binary data."""
-    tensors = input_tensors(request, binary, max_pixels)
-    if "gray" not in tensors:
-        raise _bad("missing input gray (UINT8 or UINT16, [H, W])")
-    if ("sparse" in tensors) == ("returns" in tensors):
-        given = "both" if "sparse" in tensors else "neither"
-        raise _bad(
-            f"send the LIDAR returns once: input sparse (FP32 [H, W]) or returns (FP32 "
-            f"[N, 3]), not {given}"
-        )
-    parameters = request.parameters or InferParameters()
+    tensors = input_tensors(parsed, binary, limits)
+    parameters = parsed.request.parameters or InferParameters()
     return frame_of(
         tensors["gray"],
         tensors.get("sparse"),
         tensors.get("returns"),
-        max_pixels,
+        limits,
         fx=parameters.fx,
         fy=parameters.fy,
         cx=parameters.cx,
         cy=parameters.cy,
         outlier_removal=parameters.outlier_removal,
+        max_sigma=parameters.max_sigma,
     )
 
 
@@ -363,18 +404,23 @@ class Tensor:
     parameters: dict[str, Scalar]
 
 
-def output_tensor(output: DepthOutput | MaskOutput | PointsOutput, done: Completed) -> Tensor:
+def output_tensor(output: AnyOutput, done: Completed) -> Tensor:
     """``output`` of a completed frame, in the layout its parameters ask for."""
     if isinstance(output, PointsOutput):
         return Tensor(done.points, "FP32", {})
     params = output.parameters
-    array = done.depth if isinstance(output, DepthOutput) else done.mask.astype(np.uint8)
+    if isinstance(output, MaskOutput):
+        array = done.mask.view(np.uint8)
+    else:
+        array = done.depth if isinstance(output, DepthOutput) else done.sigma
     extra: dict[str, Scalar] = {}
     if params is not None and params.region:
         y0, x0, height, width = done.window
         array = crop(array, y0, x0, height, width)
         extra = {"region_y0": y0, "region_x0": x0, "region_height": height}
         extra["region_width"] = width
+    if isinstance(output, SigmaOutput):
+        return Tensor(array, "FP32", extra)
     if isinstance(output, DepthOutput):
         if params is not None and params.fp16:
             array, offset = fp16_residuals(array)
@@ -391,54 +437,114 @@ def summary_parameters(summary: CompletionSummary) -> dict[str, Scalar]:
     return {**flat, **summary.intrinsics.model_dump(), **summary.timings.model_dump()}
 
 
-def requested_outputs(request: InferenceRequest) -> list[DepthOutput | MaskOutput | PointsOutput]:
-    """The outputs asked for, each once (default: depth, mask and points)."""
+def requested_outputs(request: InferenceRequest) -> list[AnyOutput]:
+    """The outputs asked for, each once (default: depth, mask, points and sigma)."""
     if request.outputs is None:
-        return [DepthOutput(name="depth"), MaskOutput(name="mask"), PointsOutput(name="points")]
+        return [
+            DepthOutput(name="depth"),
+            MaskOutput(name="mask"),
+            PointsOutput(name="points"),
+            SigmaOutput(name="sigma"),
+        ]
     names = [o.name for o in request.outputs]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise _bad(f"output {', '.join(repeated)} is asked for more than once")
     if not names:
-        raise _bad("outputs is empty: ask for depth, mask or points, or leave it out for all")
+        raise _bad(
+            "outputs is empty: ask for depth, mask, points or sigma, or leave it out for all"
+        )
     return list(request.outputs)
 
 
-def encode_outputs(
-    outputs: list[DepthOutput | MaskOutput | PointsOutput], done: Completed, binary_default: bool
-) -> tuple[list[dict], list[np.ndarray]]:
-    """The outputs' JSON entries and, in the same order, the binary data of those sent so."""
-    entries, chunks = [], []
+#: Values written as JSON text at a time (``write_json_values``).
+JSON_VALUES_STEP = 2**16
+
+
+@dataclass(frozen=True)
+class Output:
+    """One output as it leaves: its JSON entry (``data`` aside) and its tensor, sent as
+    binary data or as JSON ``data``."""
+
+    entry: dict[str, Any]
+    tensor: Tensor
+    binary: bool
+
+
+def encode_outputs(outputs: list[AnyOutput], done: Completed, binary_default: bool) -> list[Output]:
+    """The outputs in the layouts asked for, and how each is sent."""
+    encoded = []
     for output in outputs:
         tensor = output_tensor(output, done)
         asked = output.parameters.binary_data if output.parameters else None
+        binary = binary_default if asked is None else asked
         entry: dict[str, Any] = {"name": output.name, "datatype": tensor.datatype}
         entry["shape"] = list(tensor.array.shape)
         parameters = dict(tensor.parameters)
-        if binary_default if asked is None else asked:
-            array = np.ascontiguousarray(tensor.array, DTYPES[tensor.datatype])
-            parameters["binary_data_size"] = array.nbytes
-            chunks.append(array.reshape(-1).view(np.uint8))  # the bytes, not a copy
-        else:
-            entry["data"] = tensor.array.ravel().tolist()
+        if binary:
+            parameters["binary_data_size"] = tensor.array.size * DTYPES[tensor.datatype].itemsize
         if parameters:
             entry["parameters"] = parameters
-        entries.append(entry)
-    return entries, chunks
+        encoded.append(Output(entry, tensor, binary))
+    return encoded
 
 
-def answer(engine: Engine, body: bytes, header_length: str | None, max_pixels: int) -> Answer:
-    """Parse, complete, encode one inference request; raises ``ApiError`` for bad input."""
+def write_json_values(spool: Spool, array: np.ndarray) -> None:
+    """``array``'s values as a flat JSON array, ``JSON_VALUES_STEP`` at a time."""
+    flat = array.reshape(-1)
+    spool.write(b"[")
+    for start in range(0, flat.size, JSON_VALUES_STEP):
+        text = json.dumps(flat[start : start + JSON_VALUES_STEP].tolist())[1:-1]
+        spool.write((", " if start else "").encode() + text.encode())
+    spool.write(b"]")
+
+
+def write_answer(spool: Spool, document: dict[str, Any], outputs: list[Output]) -> int:
+    """The answer into ``spool``: the JSON header (``document`` and the outputs, JSON data
+    written as text from the arrays, never as Python lists), then the binary data; returns
+    the JSON header's length, bytes."""
+    marks = [f"sdcnet-data-{uuid.uuid4().hex}" for _ in outputs]
+    entries = [
+        output.entry if output.binary else {**output.entry, "data": mark}
+        for output, mark in zip(outputs, marks, strict=True)
+    ]
+    text = json.dumps({**document, "outputs": entries})
+    for output, mark in zip(outputs, marks, strict=True):
+        if not output.binary:
+            before, text = text.split(f'"{mark}"', 1)
+            spool.write(before.encode())
+            write_json_values(spool, output.tensor.array)
+    spool.write(text.encode())
+    header_length = spool.size
+    for output in outputs:
+        if output.binary:
+            array = np.ascontiguousarray(output.tensor.array, DTYPES[output.tensor.datatype])
+            for piece in array_slices(array):
+                spool.write(piece)
+    return header_length
+
+
+def answer(
+    engine: Engine,
+    body: bytes | bytearray,
+    header_length: str | None,
+    limits: InputLimits,
+    camera: ServiceCamera | None = None,
+) -> Answer:
+    """Parse (into the ``camera``'s frame), complete, encode one inference request; raises
+    ``ApiError`` for bad input. The encode phase times the outputs' layouts; their bytes are
+    written with the header, which carries the timings."""
     timer = PhaseTimer()
     with timer("decode"):
         header, binary = split_body(body, header_length)
-        request = parse_request(header)
-        outputs = requested_outputs(request)
-        frame = frame_of_request(request, binary, max_pixels)
-    done = complete_frame(engine, frame, max_pixels, timer)
+        parsed = parse_request(header)
+        outputs = requested_outputs(parsed.request)
+        frame = camera_frame(frame_of_request(parsed, binary, limits), camera)
+    done = complete_frame(engine, frame, timer)
+    request = parsed.request
     parameters = request.parameters or InferParameters()
     with timer("encode"):
-        entries, chunks = encode_outputs(outputs, done, parameters.binary_data_output)
+        encoded = encode_outputs(outputs, done, parameters.binary_data_output)
     document: dict[str, Any] = {
         "model_name": MODEL_NAME,
         "model_version": engine.model.info.version,
@@ -446,13 +552,17 @@ def answer(engine: Engine, body: bytes, header_length: str | None, max_pixels: i
     if request.id is not None:
         document["id"] = request.id
     document["parameters"] = summary_parameters(done.summary(engine.model, timer))
-    document["outputs"] = entries
-    header_bytes = json.dumps(document).encode()
-    if not chunks:
-        return Answer(header_bytes, timer, media_type="application/json")
+    spool = Spool()
+    try:
+        length = write_answer(spool, document, encoded)
+    except BaseException:
+        spool.close()
+        raise
+    if not any(output.binary for output in encoded):
+        return Answer(spool, timer, media_type="application/json")
     return Answer(
-        b"".join([header_bytes, *chunks]),
+        spool,
         timer,
-        headers={HEADER_LENGTH: str(len(header_bytes))},
+        headers={HEADER_LENGTH: str(length)},
         media_type="application/octet-stream",
     )

@@ -26,6 +26,11 @@ NEEDS_TRAINING = {
     "test_real_meshes.py",
     "test_sequence.py",  # sdc-data sequence
     "test_training.py",
+    "test_worlds.py",  # the generator's worlds
+    "test_evaluation.py",  # the classical fill, stored answers, the robustness suite
+    "test_generalisation.py",  # the shipped model on frames the generator renders
+    "test_lidar.py",
+    "test_backgrounds.py",
 }
 
 

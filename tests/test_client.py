@@ -38,8 +38,9 @@ def frame(size: int):
 def url(tmp_path_factory, tiny_model_path):
     model = tiny_model_path
     log = tmp_path_factory.mktemp("client-service") / "serve.log"
-    # one request at a time, so that concurrent clients meet 503s and must retry
-    with running_service(model, log, "--max-in-flight=1", "--retry-after=1") as address:
+    # one request at a time, none held waiting: concurrent clients meet 503s and must retry
+    flags = ("--max-in-flight=1", "--max-requests=1", "--retry-after=1")
+    with running_service(model, log, *flags) as address:
         yield address
 
 
@@ -53,17 +54,26 @@ def frame_files(tmp_path_factory):
     return folder / "gray.png", folder / "sparse.npy"
 
 
-def service_answer(url: str, gray: bytes, sparse: bytes) -> dict[str, np.ndarray]:
+def service_answer(url: str, gray: bytes, sparse: bytes, **fields) -> dict[str, np.ndarray]:
     """The service's own JSON answer, decoded: what the client's files must hold."""
     files = {"gray": ("g.png", gray), "sparse": ("s.npy", sparse)}
-    body = httpx.post(f"{url}/complete", files=files, timeout=60).json()
+    body = httpx.post(f"{url}/complete", files=files, data=fields, timeout=60).json()
     return {
         k: np.load(io.BytesIO(base64.b64decode(body[k]["npy_base64"])), allow_pickle=False)
-        for k in ("depth", "mask", "points")
+        for k in ("depth", "mask", "points", "sigma")
     }
 
 
-def test_infer_writes_four_files_that_match_the_service(url, frame_files, tmp_path, capsys):
+def service_ply(url: str, gray: bytes, sparse: bytes, **fields) -> bytes:
+    """The service's own PLY answer."""
+    files = {"gray": ("g.png", gray), "sparse": ("s.npy", sparse)}
+    params = {"format": "ply"}
+    return httpx.post(
+        f"{url}/complete", files=files, data=fields, params=params, timeout=60
+    ).content
+
+
+def test_infer_writes_five_files_that_match_the_service(url, frame_files, tmp_path, capsys):
     gray, sparse = frame_files
     out = tmp_path / "out"
     assert main(["infer", str(gray), str(sparse), "--url", url, "--out", str(out)]) == 0
@@ -72,21 +82,42 @@ def test_infer_writes_four_files_that_match_the_service(url, frame_files, tmp_pa
     expected = service_answer(url, gray.read_bytes(), sparse.read_bytes())
     depth = np.load(out / "depth.npy", allow_pickle=False)
     np.testing.assert_array_equal(depth, expected["depth"])
+    sigma = np.load(out / "sigma.npy", allow_pickle=False)
+    assert sigma.dtype == np.float32 and np.isfinite(sigma).all()
+    np.testing.assert_array_equal(sigma, expected["sigma"])
     mask = cv2.imread(str(out / "mask.png"), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(mask, expected["mask"] * 255)
 
     header = (out / "points.ply").read_bytes().split(b"end_header\n")[0].decode()
     assert f"element vertex {len(expected['points'])}" in header
-    points, comments = read_ply(out / "points.ply")
+    cloud = read_ply(out / "points.ply")
+    points = cloud.points
     np.testing.assert_array_equal(points, expected["points"])
     assert len(points) == np.count_nonzero(expected["depth"]) > 3000
-    assert f"model_version {TINY_VERSION}" in comments
+    assert f"model_version {TINY_VERSION}" in cloud.comments
+    # each point's sigma, as in the service's own PLY answer
+    served = read_ply(service_ply(url, gray.read_bytes(), sparse.read_bytes()))
+    np.testing.assert_array_equal(cloud.properties["sigma"], served.properties["sigma"])
 
     preview = cv2.imread(str(out / "preview.png"))
-    assert preview.shape == (320, 4 * 320 + 3 * 4, 3)
+    assert preview.shape == (320, 5 * 320 + 4 * 4, 3)
     printed = capsys.readouterr().out
     assert TINY_VERSION in printed and f"points    {len(points):,}" in printed
+    median = np.median(expected["sigma"][expected["mask"].astype(bool)])
+    assert f"sigma     median {median:.3f} m on the mask" in printed
     assert len(printed.splitlines()) <= 24  # one screen
+
+    # --max-sigma: the cloud without the points above it, the arrays whole
+    argv = ["infer", str(gray), str(sparse), "--url", url, "--out", str(tmp_path / "cut")]
+    assert main([*argv, "--max-sigma", "0.07"]) == 0
+    cut = read_ply(tmp_path / "cut" / "points.ply")
+    served = read_ply(service_ply(url, gray.read_bytes(), sparse.read_bytes(), max_sigma=0.07))
+    np.testing.assert_array_equal(cut.points, served.points)
+    np.testing.assert_array_equal(cut.properties["sigma"], served.properties["sigma"])
+    assert len(cut.points) < len(points) and cut.properties["sigma"].max() <= 0.07
+    np.testing.assert_array_equal(np.load(tmp_path / "cut" / "sigma.npy"), sigma)
+    removed = len(points) - len(cut.points)
+    assert f"{removed} above max_sigma removed" in capsys.readouterr().out
 
 
 def test_python_api_returns_arrays(url, frame_files):
@@ -99,9 +130,17 @@ def test_python_api_returns_arrays(url, frame_files):
         np.testing.assert_array_equal(result.depth, expected["depth"])
         np.testing.assert_array_equal(result.mask, expected["mask"].astype(bool))
         np.testing.assert_array_equal(result.points, expected["points"])
+        assert result.sigma.dtype == np.float32 and np.isfinite(result.sigma).all()
+        np.testing.assert_array_equal(result.sigma, expected["sigma"])  # pasted back whole
         assert result.model_version == TINY_VERSION
         assert result.provider == "CPUExecutionProvider"
         assert set(result.timings_ms) == {"decode_ms", "queue_ms", "inference_ms", "encode_ms"}
+    with Client(url) as client:
+        cut = client.complete(s.gray, s.sparse, max_sigma=0.07)
+    served = service_answer(url, png_bytes(s.gray), npy_bytes(s.sparse), max_sigma=0.07)
+    np.testing.assert_array_equal(cut.points, served["points"])
+    np.testing.assert_array_equal(cut.sigma, expected["sigma"])
+    assert cut.meta["uncertain_removed"] == len(expected["points"]) - len(cut.points) > 0
 
 
 def test_concurrent_clients_retry_503_and_all_succeed(url):
@@ -160,8 +199,8 @@ def test_a_4xx_answer_exits_3_with_the_service_message(url, tmp_path, capsys):
     argv = ["infer", str(tmp_path / "gray.png"), str(tmp_path / "sparse.npy"), "--url", url]
     assert main([*argv, "--fx", "-5", "--out", str(tmp_path / "out")]) == 3
     err = capsys.readouterr().err
-    assert "400 invalid_request" in err
-    assert "parameters.fx: Input should be greater than or equal to 0.001" in err
+    assert "422 invalid_intrinsics" in err
+    assert "focal lengths must be positive pixels, got fx -5" in err
     assert not (tmp_path / "out").exists()
     with Client(url) as client, pytest.raises(ServiceError) as raised:
         client.complete(s.gray, np.zeros_like(s.sparse))

@@ -14,6 +14,7 @@ import yaml
 from test_docker import stages
 
 from sdcnet.service.app import create_app
+from sdcnet.service.budget import budget
 from sdcnet.service.settings import Settings
 from sdcnet.training.data.cli import parser as sdc_data_parser
 
@@ -132,6 +133,32 @@ def test_environment_variables_are_the_services_settings(kind, monkeypatch):
         assert one("InferenceService")["spec"]["predictor"]["scaleTarget"] == (
             settings.max_in_flight
         )
+
+
+def mebibytes(quantity: str) -> float:
+    """A Kubernetes memory or storage quantity ("512Mi", "1Gi") in MiB."""
+    number, unit = re.fullmatch(r"(\d+)(Mi|Gi)", quantity).groups()
+    return float(number) * {"Mi": 1, "Gi": 1024}[unit]
+
+
+@pytest.mark.parametrize("kind", ["Deployment", "InferenceService"])
+def test_memory_follows_the_services_budget(kind, monkeypatch):
+    """The pod's memory holds the warm service, max_in_flight requests at their budget and
+    the spools (sdcnet.service.budget, for the settings the manifest gives); the Deployment's
+    /tmp holds the spools' files."""
+    pod = pod_of(one(kind))
+    (container,) = pod["containers"]
+    for variable in container["env"]:
+        monkeypatch.setenv(variable["name"], variable["value"])
+    needed = budget(Settings())
+    resources = container["resources"]
+    assert mebibytes(resources["limits"]["memory"]) >= needed.memory_mib
+    assert mebibytes(resources["requests"]["memory"]) >= needed.memory_mib
+    if kind == "Deployment":
+        (tmp,) = [v for v in pod["volumes"] if v["name"] == "tmp"]
+        assert mebibytes(tmp["emptyDir"]["sizeLimit"]) >= needed.disk_mib
+        mounts = {m["name"]: m["mountPath"] for m in container["volumeMounts"]}
+        assert mounts["tmp"] == "/tmp"
 
 
 def test_service_and_autoscaler_point_at_the_deployment():

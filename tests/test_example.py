@@ -64,9 +64,13 @@ def test_the_readme_example_writes_its_four_files(url, tmp_path):
     assert sorted(p.name for p in result.iterdir()) == sorted(OUTPUT_FILES)
     depth = np.load(result / "depth.npy", allow_pickle=False)
     mask = cv2.imread(str(result / "mask.png"), cv2.IMREAD_UNCHANGED) > 0
-    points, _ = read_ply(result / "points.ply")
+    cloud = read_ply(result / "points.ply")
+    points = cloud.points
     assert depth.shape == mask.shape == (1024, 1024) and depth.dtype == np.float32
     assert mask.sum() > 10_000 and len(points) == np.count_nonzero(depth)
+    sigma = np.load(result / "sigma.npy", allow_pickle=False)
+    assert sigma.dtype == np.float32 and np.isfinite(sigma).all() and not sigma[~mask].any()
+    np.testing.assert_array_equal(cloud.properties["sigma"], sigma[depth > 0])
     assert 100 < np.median(depth[depth > 0]) < 180  # the spacecraft at ~140 m
     assert cv2.imread(str(result / "preview.png")).shape[0] > 0
     assert "LIDAR returns" in done.stdout and "wrote     result/depth.npy" in done.stdout

@@ -10,7 +10,8 @@ import torch
 from sdcnet.export import onnx_export
 from sdcnet.export.cli import main as export_main
 from sdcnet.export.cli import parity_frames
-from sdcnet.export.onnx_export import export_onnx, model_metadata, parity_check
+from sdcnet.export.onnx_export import export_onnx, network_metadata_props, parity_check
+from sdcnet.export.variants import FLOAT_MODULES, FLOAT_NODES_PREFIXES, to_int8
 from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.training.checkpoint import save_checkpoint
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
@@ -30,7 +31,7 @@ def exported(tmp_path_factory):
     with torch.no_grad():
         model.fsnet.head.bias += 3.0
     path = tmp_path_factory.mktemp("onnx") / "m.onnx"
-    export_onnx(model, path, model_metadata(model, "test", {"MAEI": 0.1}))
+    export_onnx(model, path, network_metadata_props(model, "test", {"MAEI": 0.1}))
     return model, path
 
 
@@ -55,12 +56,12 @@ def test_every_variant_exports_with_parity_at_two_sizes_and_batches(variant, fra
         torch.nn.init.normal_(model.fdcnet.head.weight, std=0.05)
         if model.fsnet is not None:  # and foreground everywhere, so every pixel's depth is
             model.fsnet.head.bias += 6.0
-    path = export_onnx(model, tmp_path / f"{variant}.onnx", model_metadata(model, "test"))
+    path = export_onnx(model, tmp_path / f"{variant}.onnx", network_metadata_props(model, "test"))
     sizes = (256, 512) if variant == "sdcnet" else (256,)  # the shipped design at two sizes
     cases = parity_check(model, path, frames, sizes=sizes, batches=(1, 2))
     assert [(c.size, c.batch) for c in cases] == [(s, b) for s in sizes for b in (1, 2)]
     assert all(c.passed for c in cases), cases
-    assert all(c.max_depth_error_m < 5e-4 for c in cases)  # metres; the export's bar is 1 mm
+    assert all(c.max_depth_error_m < onnx_export.MAX_DEPTH_ERROR_M for c in cases)
     assert all(c.mask_agreement == 1.0 for c in cases)
     assert [c.compared_px for c in cases] == [c.batch * c.size**2 for c in cases]
 
@@ -78,7 +79,10 @@ def test_parity_rejects_a_model_whose_depth_differs(exported, frames):
     model, path = exported
     (case,) = parity_check(perturbed(model, depth_bias=0.1), path, frames, (256,), (1,))
     assert not case.passed and case.mask_agreement == 1.0 and case.compared_px == 256**2
-    assert case.max_depth_error_m == pytest.approx(0.1, rel=1e-3)  # the bias x 1 m (residual)
+    _, sparse, fx = frames[0]
+    crop = torch.from_numpy(onnx_export._centre(sparse, 256).copy())[None, None]
+    unit = model.residual_unit(crop, torch.full((1, 1, 1, 1), fx)).item()  # metres
+    assert case.max_depth_error_m == pytest.approx(0.1 * unit, rel=5e-3)  # the bias x the unit
 
 
 def test_parity_rejects_a_model_whose_mask_differs(exported, frames):
@@ -120,3 +124,24 @@ def test_loading_a_bad_model_file_says_why(tmp_path):
         OnnxModel(tmp_path / "junk.onnx")
     with pytest.raises(ModelLoadError, match="not available"):
         OnnxModel(tmp_path / "junk.onnx", provider="TensorrtExecutionProvider")
+
+
+def test_int8_keeps_the_depth_and_mask_heads_in_float(exported, frames, tmp_path):
+    """INT8 picks the layers it keeps in float by name (``FLOAT_MODULES``): a head renamed, or
+    named otherwise by the exporter, would be quantised quietly. The names must be the
+    network's depth and mask heads, and in the quantised graph every convolution of theirs,
+    and only theirs, must keep float weights."""
+    model, path = exported
+    assert [model.get_submodule(name) for name in FLOAT_MODULES] == [
+        model.fdcnet.head,  # the depth residual, scaled to metres
+        model.fsnet.head,  # the mask logits
+    ]
+    target = to_int8(path, tmp_path / "m.int8.onnx", frames[:1], model.config.stride)
+    graph = onnx.load(str(target)).graph
+    dequantized = {n.output[0] for n in graph.node if n.op_type == "DequantizeLinear"}
+    convs = [n for n in graph.node if n.op_type == "Conv"]
+    in_float = {n.name for n in convs if n.input[1] not in dequantized}
+    for prefix in FLOAT_NODES_PREFIXES:
+        assert any(name.startswith(prefix) for name in in_float), f"no float Conv {prefix}*"
+    assert all(name.startswith(FLOAT_NODES_PREFIXES) for name in in_float)
+    assert len(in_float) < len(convs)  # the rest is quantised

@@ -1,7 +1,8 @@
 """Start-up faults of ``sdc-serve``: a missing, empty, truncated or non-ONNX model file, an ONNX
 file that is not an sdcnet model (or only looks like one), an execution provider that is not
-there, a bad setting, a busy port. Each must end the process with a non-zero status and one
-clear line on stderr, never a traceback and never a service that is up but cannot serve.
+there, a bad setting, a busy port, a targets folder whose manifest is wrong. Each must end the
+process with a non-zero status and one clear line on stderr, never a traceback and never a
+service that is up but cannot serve.
 
 All cases start at once (one subprocess each, real ``python -m sdcnet.service``) in one
 module fixture, so the whole file costs about one start-up.
@@ -9,6 +10,7 @@ module fixture, so the whole file costs about one start-up.
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -19,6 +21,7 @@ from pathlib import Path
 import onnx
 import onnxruntime as ort
 import pytest
+import trimesh
 from onnx import TensorProto, helper
 
 from sdcnet.devtools.models import graph_model
@@ -71,11 +74,41 @@ def model_files(base: Path, good: Path) -> dict[str, Path]:
     nodes = [
         helper.make_node("Reshape", ["gray", "shape"], ["depth"]),
         helper.make_node("Identity", ["sparse"], ["foreground"]),
+        helper.make_node("Identity", ["sparse"], ["sigma"]),
     ]
     seven = helper.make_tensor("shape", TensorProto.INT64, [4], [1, 1, 7, 7])
     onnx.save(graph_model(nodes, metadata=metadata, initializers=(seven,)), paths["impostor"])
     paths["good"] = good
     return paths
+
+
+def target_folders(base: Path) -> dict[str, Path]:
+    """Targets folders of one mesh, each broken one way: the folder's key is
+    ``targets_<way>``."""
+    mesh = trimesh.creation.box((2.0, 1.0, 0.5))
+    outside = base / "outside.stl"
+    mesh.export(outside)
+    folders = {}
+    ways = {
+        "file_not_text": [{"file": 5}],
+        "outside": [{"file": "../outside.stl"}],
+        "link_out": [{"file": "link.stl"}],
+        "longest_true": [{"file": "box.stl", "longest_m": True}],
+        "flat_mesh": [{"file": "flat.stl"}],
+    }
+    for way, manifest in ways.items():
+        folder = base / f"targets-{way}"
+        folder.mkdir(exist_ok=True)
+        mesh.export(folder / "box.stl")
+        (folder / "flat.stl").write_text(
+            "solid flat\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+            "vertex 2 0 0\nendloop\nendfacet\nendsolid flat\n"
+        )
+        if way == "link_out" and not (folder / "link.stl").exists():
+            (folder / "link.stl").symlink_to(outside)
+        (folder / "manifest.json").write_text(json.dumps(manifest))
+        folders[f"targets_{way}"] = folder
+    return folders
 
 
 #: case -> (model file, more flags, environment, what the last line of stderr says); "{model}",
@@ -118,13 +151,42 @@ CASES: dict[str, tuple[str | None, list[str], dict[str, str], str]] = {
     ),
     "invalid_setting": ("good", [], {"SDCNET_MAX_IN_FLIGHT": "0"}, "sdc-serve: invalid setting"),
     "busy_port": ("good", ["--port", "{busy_port}"], {}, "sdc-serve: cannot serve on"),
+    # targets manifests: types checked, files of the folder only (a crash with exit 70, and
+    # meshes loaded from outside the folder, before), no mesh without area
+    "targets_file_not_text": (
+        "good",
+        ["--targets", "{targets_file_not_text}"],
+        {},
+        "'file' must be a file name, got 5",
+    ),
+    "targets_outside_the_folder": (
+        "good",
+        ["--targets", "{targets_outside}"],
+        {},
+        "../outside.stl lies outside the folder",
+    ),
+    "targets_link_out_of_the_folder": (
+        "good",
+        ["--targets", "{targets_link_out}"],
+        {},
+        "link.stl lies outside the folder",
+    ),
+    "targets_longest_true": (
+        "good",
+        ["--targets", "{targets_longest_true}"],
+        {},
+        "longest_m must be a positive number of metres, got True",
+    ),
+    "targets_flat_mesh": ("good", ["--targets", "{targets_flat_mesh}"], {}, "is degenerate"),
 }
 
 
 @pytest.fixture(scope="module")
 def outcomes(tmp_path_factory, tiny_model_path) -> dict[str, tuple[Outcome, str]]:
     """Start every case at once; (outcome, expected message) per case."""
-    paths = model_files(tmp_path_factory.mktemp("faults"), tiny_model_path)
+    base = tmp_path_factory.mktemp("faults")
+    paths = model_files(base, tiny_model_path)
+    folders = target_folders(base)
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
@@ -134,6 +196,7 @@ def outcomes(tmp_path_factory, tiny_model_path) -> dict[str, tuple[Outcome, str]
                 "model": paths.get(model, ""),
                 "absent": paths["good"].parent / "absent.onnx",
                 "busy_port": busy.getsockname()[1],
+                **folders,
             }
             command = [sys.executable, "-m", "sdcnet.service", "--host", "127.0.0.1"]
             command += ["--model", str(values["model"])] if model else []

@@ -12,6 +12,7 @@ or shape, bad depths, a simple pickle, a too-large real image): none is repeated
 from __future__ import annotations
 
 import gzip
+import json
 import re
 import socket
 import struct
@@ -27,11 +28,23 @@ import httpx
 import numpy as np
 import pytest
 
+from sdcnet.devtools.attacks import (
+    LIBRARY_HINTS,
+    bright_frame,
+    csv_returns,
+    huge_integer,
+    reset_peak,
+    v2_json_zeros,
+)
 from sdcnet.devtools.frames import multipart_body, png_bytes, sample_files, synthetic_frame
 from sdcnet.devtools.serving import memory_kib, service_process
 from sdcnet.npyio import npy_bytes
+from sdcnet.service.budget import budget
+from sdcnet.service.settings import Settings
 
+V2_INFER = "/v2/models/sdcnet/infer"
 MAX_PIXELS = 1024 * 1024
+MAX_RETURNS = 50_000
 MAX_UPLOAD_BYTES = 8 * 2**20
 BODY_TIMEOUT_S = 1.0
 WALL_LIMIT_S = 5.0  # per request: generous, only to catch hangs
@@ -44,6 +57,7 @@ def service(tmp_path_factory, tiny_model_path):
     """The service with small limits, after one real frame (so its memory is warmed up)."""
     log = tmp_path_factory.mktemp("hostile") / "serve.log"
     flags = [f"--max-pixels={MAX_PIXELS}", f"--max-upload-bytes={MAX_UPLOAD_BYTES}"]
+    flags += [f"--max-returns={MAX_RETURNS}"]
     flags += [f"--body-timeout={BODY_TIMEOUT_S}", "--max-in-flight=2"]
     with service_process(tiny_model_path, log, *flags) as running:
         response = httpx.post(f"{running.url}/complete", files=good_files(), timeout=60)
@@ -264,6 +278,34 @@ def gray_png() -> bytes:
     return good_files()["gray"][1]
 
 
+def returns_files(returns: bytes) -> dict[str, tuple[str, bytes]]:
+    """The good frame's gray image with ``returns`` as its list of returns."""
+    return {"gray": good_files()["gray"], "returns": ("returns.bin", returns)}
+
+
+def npy_returns(count: int) -> bytes:
+    """``count`` returns at pixel (0, 0), 100 m, as a .npy."""
+    return npy_bytes(np.tile(np.float32([0, 0, 100]), (count, 1)))
+
+
+def v2_with_shape(shape: list[int]) -> bytes:
+    gray = {"name": "gray", "datatype": "UINT8", "shape": shape, "data": [0]}
+    return json.dumps({"inputs": [gray]}).encode()
+
+
+def send_v2(url: str, body: bytes) -> Answer:
+    """POST a JSON body to the v2 route; the code comes back in a header there."""
+    start = time.perf_counter()
+    response = httpx.post(
+        f"{url}{V2_INFER}", content=body, headers={"content-type": "application/json"}, timeout=30
+    )
+    seconds = time.perf_counter() - start
+    code = response.headers.get("sdcnet-error-code")
+    message = response.json().get("error", "") if response.status_code >= 400 else ""
+    document = {"error": {"code": code, "message": message}}
+    return Answer(response.status_code, json.dumps(document).encode(), seconds)
+
+
 #: case -> (how it is sent, expected status, expected error code; None: the server's own
 #: HTTP-level answer, not the service's JSON)
 CATALOGUE: dict[str, tuple[Case, int | None, str | None]] = {
@@ -297,10 +339,12 @@ CATALOGUE: dict[str, tuple[Case, int | None, str | None]] = {
         400,
         "unreadable_file",
     ),
+    # its header, found past the fill, declares 16 x 16: not the sparse map's size, refused
+    # before anything is decoded
     "jpeg_fill_byte_flood": (
         with_gray(lambda: b"\xff\xd8" + b"\xff" * (7 * 2**20) + jpeg_header(16, 16)[3:]),
-        400,
-        "unreadable_file",
+        422,
+        "wrong_shape",
     ),
     # decodes (8 MiB, within the pixel limit, from a 30 kB file), then refused: sizes differ
     "png_rgba16_at_the_pixel_limit": (
@@ -421,6 +465,36 @@ CATALOGUE: dict[str, tuple[Case, int | None, str | None]] = {
         400,
         "bad_request",
     ),
+    # sizes checked against the frame (256 x 256) and the limits before anything is parsed
+    "returns_csv_of_more_lines_than_the_frame_has_pixels": (
+        lambda url, tmp: send(url, *multipart_body(returns_files(csv_returns(70_000)))),
+        413,
+        "too_large",
+    ),
+    "returns_npy_of_more_than_max_returns": (
+        lambda url, tmp: send(url, *multipart_body(returns_files(npy_returns(MAX_RETURNS + 1)))),
+        413,
+        "too_large",
+    ),
+    "npy_shape_of_5000_digits": (
+        with_sparse(
+            lambda: npy_with_header(
+                f"{{'descr': '<f4', 'fortran_order': False, 'shape': ({huge_integer()}, 2), }}"
+            )
+        ),
+        400,
+        "unreadable_file",
+    ),
+    "v2_shape_of_100000_dimensions": (
+        lambda url, tmp: send_v2(url, v2_with_shape([1] * 100_000)),
+        400,
+        "invalid_request",
+    ),
+    "v2_data_beyond_its_shape": (
+        lambda url, tmp: send_v2(url, v2_json_zeros(3_500_000)),
+        400,
+        "invalid_request",
+    ),
     # HTTP itself: uvicorn answers this before the service sees it
     "content_length_not_a_number": (
         lambda url, tmp: send_raw(url, raw_request(b"x", "twelve")),
@@ -456,6 +530,59 @@ def test_a_client_that_gives_up_mid_body_is_dropped(service, baseline_kib):
     answer = _abandoned_body(service.url, Path())
     assert answer.seconds < WALL_LIMIT_S
     assert answer.status is None or 400 <= answer.status < 500
+
+
+def test_no_answer_echoes_a_library_or_its_hints(answers):
+    """Errors are in the service's words: no library's name, and none of its hints on how to
+    lift a safety limit (numpy's "allow_pickle=True", Python's "sys.set_int_max_str_digits")."""
+    for case, (answer, _) in answers.items():
+        text = answer.body.decode("utf-8", "replace")
+        assert not [hint for hint in LIBRARY_HINTS if hint in text], (case, text[:300])
+
+
+def peak_of(service, request: Callable[[], httpx.Response]) -> tuple[httpx.Response, float]:
+    """``request()``'s answer and how far it raised the server's peak memory, MiB (the peak
+    reset to the resident memory first)."""
+    reset_peak(service.pid)
+    before = memory_kib(service.pid)["peak"]
+    response = request()
+    return response, (memory_kib(service.pid)["peak"] - before) / 1024
+
+
+def test_v2_json_data_is_counted_against_its_shape_before_it_is_parsed(service):
+    """A [1, 1] gray with 3.5M zeros (7 MB): refused before any value becomes a Python object
+    (those took 8 to 32 bytes a value: +0.7 GiB for 15M)."""
+    body = v2_json_zeros(3_500_000)
+    response, growth = peak_of(
+        service,
+        lambda: httpx.post(
+            f"{service.url}{V2_INFER}",
+            content=body,
+            headers={"content-type": "application/json"},
+            timeout=30,
+        ),
+    )
+    assert response.status_code == 400 and "shape [1, 1] needs 1" in response.json()["error"]
+    assert growth < 2 * len(body) / 2**20, f"+{growth:.0f} MiB"
+
+
+def test_the_worst_frame_stays_within_the_request_budget(service):
+    """The largest frame the service takes, all foreground to the tiny model, a return every
+    5 pixels along rows and columns, outlier removal and a JSON answer: its peak stays within
+    the budget of one request (``sdcnet.service.budget``; before, the outlier removal alone
+    took 100 MB at 1024 x 1024)."""
+    gray, returns = bright_frame(1024, every=5)
+    files = {"gray": ("g.png", gray), "returns": ("r.npy", returns)}
+    response, growth = peak_of(
+        service,
+        lambda: httpx.post(
+            f"{service.url}/complete", files=files, data={"outlier_removal": "true"}, timeout=120
+        ),
+    )
+    assert response.status_code == 200, response.text
+    assert response.json()["point_count"] > 1000**2
+    limits = Settings(max_pixels=MAX_PIXELS, max_upload_bytes=MAX_UPLOAD_BYTES, threads=1)
+    assert growth <= budget(limits).request_mib, f"+{growth:.0f} MiB"
 
 
 def test_still_serving_without_a_500_and_memory_bounded(service, baseline_kib, answers):

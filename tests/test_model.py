@@ -10,20 +10,27 @@ from sdcnet.training.dataset import TileDataset
 from sdcnet.training.losses import (
     depth_gradient_loss,
     foreground_depth_loss,
+    laplace_nll,
     segmentation_loss,
     soft_iou_loss,
 )
 from sdcnet.training.model.blocks import space_to_depth
 from sdcnet.training.model.cca import CrossChannelAttention
 from sdcnet.training.model.mask_refiner import MaskRefiner
-from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
+from sdcnet.training.model.prefill import NearestReturnFill, near_wins_downsample
 from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet, build_model
+
+FOCAL = torch.full((1, 1, 1, 1), 7939.2)
 
 
 def lidar_like(batch: int, height: int, width: int, depth: float = 120.0) -> torch.Tensor:
     sparse = torch.zeros(batch, 1, height, width)
     sparse[:, :, 5::18, 3::12] = depth
     return sparse
+
+
+def focal(batch: int) -> torch.Tensor:
+    return FOCAL.expand(batch, 1, 1, 1)
 
 
 def test_fsnet_has_about_five_thousand_parameters():
@@ -39,19 +46,20 @@ def test_every_variant_accepts_odd_sizes_and_batches(variant):
     model = SDCNet(VARIANTS[variant]).eval()
     gray, sparse = torch.rand(2, 1, 77, 131), lidar_like(2, 77, 131)
     with torch.no_grad():
-        depth, prob = model(gray, sparse)
-    assert depth.shape == prob.shape == (2, 1, 77, 131)
+        depth, prob, sigma = model(gray, sparse, focal(2))
+    assert depth.shape == prob.shape == sigma.shape == (2, 1, 77, 131)
     assert torch.isfinite(depth).all() and ((prob >= 0) & (prob <= 1)).all()
+    assert torch.isfinite(sigma).all() and (sigma > 0).all()
     if model.fsnet is not None:  # stage 1 trains exactly the mask the full model outputs
         with torch.no_grad():
-            torch.testing.assert_close(model.segment(gray, sparse), prob)
+            torch.testing.assert_close(model.segment(gray, sparse, focal(2)), prob)
 
 
 @pytest.mark.parametrize("inputs", ["gray", "sparse", "both"])
 def test_fsnet_input_choices_of_table_4(inputs):
     model = SDCNet(ModelConfig(fsnet_inputs=inputs)).eval()
     with torch.no_grad():
-        _, prob = model(torch.rand(1, 1, 64, 64), lidar_like(1, 64, 64))
+        _, prob, _ = model(torch.rand(1, 1, 64, 64), lidar_like(1, 64, 64), FOCAL)
     assert prob.shape == (1, 1, 64, 64)
 
 
@@ -66,16 +74,22 @@ def test_cca_weights_and_attention_do_not_depend_on_input_size():
     assert cca.d_k == 48  # 3 features x 16 regions
 
 
-def test_prefill_fills_between_returns_and_near_wins():
+def test_prefill_fills_between_returns_near_wins_and_says_how_far():
     sparse = lidar_like(1, 128, 128, depth=100.0)
     sparse[0, 0, 5, 3] = 0
     sparse[0, 0, 41, 39] = 60.0  # a nearer surface in one block
     lr = near_wins_downsample(sparse, 4)
     assert lr[0, 0, 10, 9] == 60.0
-    filled = MorphologicalPrefill()(lr)
+    filled, level = NearestReturnFill()(lr)
     inner = filled[0, 0, 4:28, 4:28]
     assert (inner > 0).all(), "returns ~3 x 4.5 px apart at the working resolution are bridged"
     assert inner.min() >= 59.9 and inner.max() <= 100.0
+    assert level[0, 0, 10, 9] == 0 and level[0, 0, 11, 9] == pytest.approx(0.2)
+    lone = torch.zeros(1, 1, 64, 64)
+    lone[0, 0, 32, 32] = 50.0  # one return: reached by ever wider squares, up to 16 cells away
+    filled, level = NearestReturnFill()(lone)
+    assert (filled[0, 0, 16:49, 16:49] == 50.0).all() and filled[0, 0, 0, 0] == 0
+    assert level[0, 0, 32, 40] == pytest.approx(0.8) and level[0, 0, 0, 0] == 1.0
 
 
 def test_foreground_loss_ignores_pixels_outside_the_predicted_foreground():
@@ -107,7 +121,7 @@ def test_checkpoint_round_trip(tmp_path):
     assert loaded.config == model.config and state["note"] == "x"
     gray, sparse = torch.rand(1, 1, 64, 64), lidar_like(1, 64, 64)
     with torch.no_grad():
-        for a, b in zip(model(gray, sparse), loaded(gray, sparse), strict=True):
+        for a, b in zip(model(gray, sparse, FOCAL), loaded(gray, sparse, FOCAL), strict=True):
             torch.testing.assert_close(a, b)
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match="cannot read checkpoint"):
@@ -118,13 +132,15 @@ def test_a_few_optimisation_steps_reduce_both_losses(tiny_dataset):
     torch.manual_seed(0)
     store = SampleStore(tiny_dataset)
     data = TileDataset(store, store.records[:2], tile=128, stride=64)
-    batch = {k: torch.stack([data[i][k] for i in range(2)]) for k in ("gray", "sparse", "depth")}
+    names = ("gray", "sparse", "depth", "focal_px")
+    batch = {k: torch.stack([data[i][k] for i in range(2)]) for k in names}
     assert (batch["depth"] > 0).any()
+    inputs = (batch["gray"], batch["sparse"], batch["focal_px"])
     model = SDCNet()
     seg = torch.optim.Adam(model.segmentation_parameters(), lr=1e-2)
     losses = []
     for _ in range(20):
-        prob = model.segment(batch["gray"], batch["sparse"])
+        prob = model.segment(*inputs)
         loss = segmentation_loss(prob, batch["depth"])
         seg.zero_grad()
         loss.backward()
@@ -136,9 +152,10 @@ def test_a_few_optimisation_steps_reduce_both_losses(tiny_dataset):
     opt = torch.optim.Adam(rest, lr=3e-3)
     model.fsnet.eval()
     depth_losses = []
+    unit = model.residual_unit(batch["sparse"], batch["focal_px"])
     for _ in range(12):
-        depth, prob = model(batch["gray"], batch["sparse"])
-        loss = foreground_depth_loss(depth, prob.detach(), batch["depth"])
+        depth, prob, _ = model(*inputs)
+        loss = foreground_depth_loss(depth, prob.detach(), batch["depth"], unit)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -205,6 +222,63 @@ def test_an_untrained_refiner_leaves_fsnets_mask_as_it_was():
     }
     gray, sparse = torch.rand(1, 1, 128, 128), lidar_like(1, 128, 128)
     with torch.no_grad():
-        torch.testing.assert_close(plain.segment(gray, sparse), refined.segment(gray, sparse))
+        torch.testing.assert_close(
+            plain.segment(gray, sparse, FOCAL), refined.segment(gray, sparse, FOCAL)
+        )
     trainable = {id(p) for p in refined.segmentation_parameters()}
     assert all(id(p) in trainable for p in refined.refiner.parameters())
+
+
+def _trained_like(seed: int = 0) -> SDCNet:
+    """SDCNet with random weights everywhere, its residual head included (a fresh one starts
+    at zero and would hide what the network does with its inputs)."""
+    torch.manual_seed(seed)
+    model = SDCNet().eval()
+    torch.nn.init.normal_(model.fdcnet.head.weight, std=0.05)
+    torch.nn.init.normal_(model.fsnet.head.weight, std=0.5)
+    return model
+
+
+def test_a_scene_k_times_larger_and_farther_gives_k_times_the_depth_and_the_same_mask():
+    """The same image and returns at the same pixels, every length times k: the network must
+    not see the scale in metres (a 3 m docking frame and a 250 m one look alike to it)."""
+    model = _trained_like()
+    gray = torch.rand(1, 1, 128, 160)
+    sparse = lidar_like(1, 128, 160, depth=30.0)
+    sparse[sparse > 0] += torch.rand(int((sparse > 0).sum())) * 2.0  # a relief of 2 m
+    with torch.no_grad():
+        depth, prob, sigma = model(gray, sparse, FOCAL)
+        far_depth, far_prob, far_sigma = model(gray, 8.0 * sparse, FOCAL)
+    torch.testing.assert_close(far_depth, 8.0 * depth, rtol=1e-4, atol=1e-3)
+    torch.testing.assert_close(far_prob, prob, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(far_sigma, 8.0 * sigma, rtol=1e-4, atol=1e-5)
+
+
+def test_the_exposure_of_the_image_does_not_change_the_answer():
+    """An image four times darker (under-exposed, or 12 bits in 16) is scaled back by the mean
+    gray at the returns: the same answer."""
+    model = _trained_like(1)
+    gray = torch.rand(1, 1, 128, 128) * 0.5
+    sparse = lidar_like(1, 128, 128)
+    with torch.no_grad():
+        bright = model(gray, sparse, FOCAL)
+        dark = model(gray / 4, sparse, FOCAL)
+    for a, b in zip(bright, dark, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4)
+
+
+def test_the_laplace_nll_is_its_hand_computed_value_and_never_moves_the_depth():
+    gt = torch.tensor([[[[100.0, 100.0, 0.0]]]])
+    depth = torch.tensor([[[[100.3, 99.0, 50.0]]]], requires_grad=True)
+    scale = torch.tensor([[[[0.5, 2.0, 1.0]]]], requires_grad=True)
+    prob = torch.ones(1, 1, 1, 3)
+    unit = 0.25  # metres: log(b / unit)
+    loss = laplace_nll(depth.detach(), scale, prob, gt, unit)
+    expected = ((0.3 / 0.5 + np.log(0.5 / 0.25)) + (1.0 / 2.0 + np.log(2.0 / 0.25))) / 2
+    assert loss.item() == pytest.approx(expected, rel=1e-5)  # the sky pixel is left out
+    loss.backward()
+    assert depth.grad is None and scale.grad[0, 0, 0, 2] == 0
+    # its minimum over the scale is the absolute error: d/db (e / b + log b) = 0 at b = e
+    b = torch.tensor([[[[0.3, 1.0, 1.0]]]], requires_grad=True)
+    laplace_nll(depth.detach(), b, prob, gt).backward()
+    torch.testing.assert_close(b.grad[..., :2], torch.zeros(1, 1, 1, 2), atol=1e-4, rtol=0)

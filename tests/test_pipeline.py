@@ -1,66 +1,110 @@
-"""The crop-infer-paste pipeline every consumer shares."""
+"""The crop-resample-infer-paste pipeline every consumer shares, and its fixed budget."""
 
 import numpy as np
 import pytest
 
-from sdcnet.pipeline import complete, drop_specks, region_of_interest, resample_sparse
+from sdcnet.pipeline import (
+    MAX_UPSAMPLE,
+    WORK_PIXELS,
+    Region,
+    complete,
+    drop_specks,
+    region_of_interest,
+    resample_depth,
+    resample_sparse,
+    working_grid,
+)
+
+FX = 7939.2
 
 
-def frame(size: int = 1024, spacing: tuple[int, int] = (18, 12)):
+def frame(size: int = 1024, spacing: tuple[int, int] = (18, 12), box=(400, 600, 300, 700)):
+    y0, y1, x0, x1 = box
     gray = np.zeros((size, size), np.uint8)
-    gray[400:600, 300:700] = 200  # a bright 200 x 400 px "spacecraft"
+    gray[y0:y1, x0:x1] = 200  # a bright "spacecraft"
     sparse = np.zeros((size, size), np.float32)
-    sparse[400 : 600 : spacing[0], 300 : 700 : spacing[1]] = 120.0
+    sparse[y0 : y1 : spacing[0], x0 : x1 : spacing[1]] = 120.0
     return gray, sparse
 
 
 def bright_model(calls: list):
     """A stand-in network: foreground where the gray image is bright, depth 100 m."""
 
-    def run(gray: np.ndarray, sparse: np.ndarray):
-        calls.append((gray.shape, int(np.count_nonzero(sparse))))
+    def run(gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray):
+        calls.append((gray.shape, int(np.count_nonzero(sparse)), float(focal_px.item())))
         return np.full_like(gray, 100.0), (gray > 0.5).astype(np.float32)
 
     return run
 
 
-def test_region_holds_every_return_and_is_aligned():
+def test_region_holds_every_return_with_a_margin_of_a_few_spacings():
     _, sparse = frame()
-    region = region_of_interest(sparse, stride=64)
+    region = region_of_interest(sparse)
     rows, cols = np.nonzero(sparse)
-    assert region.y0 <= rows.min() and rows.max() < region.y1
-    assert region.x0 <= cols.min() and cols.max() < region.x1
-    assert region.shape[0] % 64 == 0 and region.shape[1] % 64 == 0
+    assert region.y0 <= rows.min() - 30 and rows.max() + 30 < region.y1
+    assert region.x0 <= cols.min() - 30 and cols.max() + 30 < region.x1
     assert region.shape[0] < 1024, "cropped, not the whole frame"
-    empty = region_of_interest(np.zeros((100, 80), np.float32), stride=64)
+    _, dense = frame(spacing=(2, 2))
+    assert region_of_interest(dense).shape[0] < region.shape[0], "denser returns, less margin"
+    empty = region_of_interest(np.zeros((100, 80), np.float32))
     assert empty.shape == (100, 80)
+    lone = np.zeros((1000, 1000), np.float32)
+    lone[500, 500] = 50.0  # one return cannot tell the spacecraft's size: a wide margin
+    assert region_of_interest(lone).shape == (301, 301)
 
 
 def test_complete_runs_on_the_crop_and_pastes_back():
     gray, sparse = frame()
     calls = []
-    result = complete(bright_model(calls), gray, sparse, stride=64)
-    ((shape, returns),) = calls
-    assert shape[2:] == result.region.shape and returns == np.count_nonzero(sparse)
-    np.testing.assert_array_equal(result.mask, gray > 127)
+    result = complete(bright_model(calls), gray, sparse, FX, stride=64)
+    ((shape, returns, focal),) = calls
+    assert shape[2:] == result.grid.shape and returns == np.count_nonzero(sparse)
+    assert focal == pytest.approx(FX * result.grid.scale[1])
+    inner = np.zeros_like(result.mask)
+    inner[402:598, 302:698] = True
+    assert result.mask[inner].all() and not result.mask[(gray == 0) & ~_grown(gray > 0, 2)].any()
     assert np.all(result.depth[result.mask] == 100.0) and np.all(result.depth[~result.mask] == 0)
 
 
-def test_zoom_resamples_the_crop_for_the_network_and_answers_at_image_resolution():
-    gray, sparse = frame(512, spacing=(9, 6))
-    gray[200:300, 150:350] = 200
-    gray[gray != 200] = 0
-    sparse = np.zeros((512, 512), np.float32)
-    sparse[200:300:9, 150:350:6] = 120.0
+def _grown(mask: np.ndarray, pixels: int) -> np.ndarray:
+    import cv2
+
+    size = 2 * pixels + 1
+    return cv2.dilate(mask.astype(np.uint8), np.ones((size, size), np.uint8)).astype(bool)
+
+
+def test_the_budget_caps_the_network_input_of_a_2048_px_full_frame():
+    gray, sparse = frame(2048, box=(0, 2048, 0, 2048))
     calls = []
-    result = complete(bright_model(calls), gray, sparse, stride=64, zoom=2.0)
-    ((shape, returns),) = calls
-    assert shape[2:] == (2 * result.region.shape[0], 2 * result.region.shape[1])
+    result = complete(bright_model(calls), gray, sparse, 2000.0, stride=64)
+    ((shape, returns, focal),) = calls
+    padded = [-(-n // 64) * 64 for n in shape[2:]]
+    assert padded[0] * padded[1] <= WORK_PIXELS
+    assert result.grid.region == Region(0, 2048, 0, 2048) and result.mask.shape == (2048, 2048)
+    assert result.mask.all(), "a frame the spacecraft fills, answered at full resolution"
+    assert focal == pytest.approx(2000.0 * shape[3] / 2048)
+    assert returns <= np.count_nonzero(sparse)
+
+
+def test_a_small_crop_is_enlarged_up_to_the_limit_and_answered_at_its_own_size():
+    gray, sparse = frame(1024, spacing=(6, 6), box=(500, 530, 500, 540))
+    calls = []
+    result = complete(bright_model(calls), gray, sparse, FX, stride=64)
+    ((shape, returns, _),) = calls
+    scale = result.grid.scale
+    assert scale[0] == pytest.approx(MAX_UPSAMPLE, rel=0.02) and shape[2] > result.region.shape[0]
     assert returns == np.count_nonzero(sparse), "every return kept once"
-    assert result.mask.shape == (512, 512)
-    assert abs(int(result.mask.sum()) - 100 * 200) < 0.02 * 100 * 200
-    with pytest.raises(ValueError, match="zoom"):
-        complete(bright_model([]), gray, sparse, stride=64, zoom=0)
+    assert abs(int(result.mask.sum()) - 30 * 40) < 0.1 * 30 * 40
+
+
+def test_working_grid_fills_its_padded_input_with_frame_pixels():
+    grid = working_grid(Region(100, 700, 200, 900), (1024, 1024), stride=64)
+    h, w = grid.shape
+    assert (-(-h // 64) * 64) * (-(-w // 64) * 64) <= WORK_PIXELS
+    assert grid.region.shape[0] >= 600 and grid.region.shape[1] >= 700, "grown, not cut"
+    assert grid.scale[0] == pytest.approx(grid.scale[1], rel=0.02)
+    small = working_grid(Region(0, 300, 0, 300), (1024, 1024), stride=64, work_pixels=512 * 512)
+    assert small.scale[0] > 1.5
 
 
 def test_resample_sparse_keeps_returns_and_the_nearest_wins():
@@ -70,6 +114,16 @@ def test_resample_sparse_keeps_returns_and_the_nearest_wins():
     assert small[0, 0] == 40.0 and small[2, 3] == 70.0 and np.count_nonzero(small) == 2
     big = resample_sparse(sparse, (16, 16))
     assert sorted(big[big > 0]) == [40.0, 50.0, 70.0]
+
+
+def test_resample_depth_interpolates_surfaces_but_never_between_two_of_them():
+    depth = np.full((8, 8), 100.0, np.float32)
+    depth[:, :4] += np.arange(4, dtype=np.float32) * 0.01  # a gentle slope
+    depth[:, 4:] = 104.0  # a surface 4 m behind
+    big = resample_depth(depth, (32, 32), footprint_m=0.01)
+    values = np.unique(np.round(big, 3))
+    assert not ((values > 100.1) & (values < 104.0)).any(), "no point between the surfaces"
+    assert len(np.unique(big[:, :12])) > 4, "the slope is interpolated"
 
 
 def test_stars_are_dropped_and_detached_parts_near_the_returns_kept():
@@ -98,8 +152,17 @@ def test_stars_are_dropped_and_detached_parts_near_the_returns_kept():
 
 def test_complete_drops_stars_from_the_mask_and_the_depth():
     gray, sparse = frame()
-    gray[300:303, 210:213] = 255  # a star inside the crop, ~100 px from every return
-    result = complete(bright_model([]), gray, sparse, stride=64)
-    assert result.region.y0 < 300 and result.region.x0 < 210
-    assert not result.mask[300:303, 210:213].any() and (result.depth[300:303, 210:213] == 0).all()
+    gray[330:333, 250:253] = 255  # a star inside the crop, ~60 px from every return
+    result = complete(bright_model([]), gray, sparse, FX, stride=64)
+    assert result.region.y0 < 330 and result.region.x0 < 250
+    assert not result.mask[328:335, 248:255].any() and (result.depth[328:335, 248:255] == 0).all()
     assert result.mask[420:580, 320:680].all()
+
+
+def test_bad_focal_lengths_and_sizes_are_refused():
+    gray, sparse = frame(256, box=(100, 150, 100, 150))
+    for focal in (0.0, -5.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="focal_px"):
+            complete(bright_model([]), gray, sparse, focal, stride=64)
+    with pytest.raises(ValueError, match="differ"):
+        complete(bright_model([]), gray, sparse[:-1], FX, stride=64)

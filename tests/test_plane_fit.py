@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from sdcnet.training.model.plane_fit import PlaneFitPrefill
-from sdcnet.training.model.sdcnet import LEGACY_FIELDS, ModelConfig, build_model
+from sdcnet.training.model.plane_fit import AdaptivePlaneFit, PlaneFitPrefill
+from sdcnet.training.model.sdcnet import build_model
 
 Cell = tuple[int, int]
 
@@ -103,24 +103,45 @@ def test_nearest_return_of_a_cell_wins_and_keeps_its_sub_pixel_position():
     assert cells[0, 0].sum().item() == 1.0
 
 
-def test_configs_saved_before_the_plane_fit_load_as_the_first_design():
-    saved = ModelConfig().to_dict()
-    for field in LEGACY_FIELDS:
-        del saved[field]
-    first = ModelConfig(depth_base="mean", subpixel=False, mask_refiner=False)
-    assert ModelConfig.from_dict(saved) == first
-    with pytest.raises(ValueError, match="depth_base"):
-        ModelConfig(depth_base="median")
+def test_the_adaptive_fit_takes_the_finest_window_the_returns_support():
+    """A flash array's dense returns get the finest window, a sparse grid's a coarser one;
+    both recover a plane exactly, and no window at all is used far from every return."""
+    rng = np.random.default_rng(3)
+    tilted = lambda r, c: 80.0 + 0.02 * c - 0.01 * r  # noqa: E731
+    fit = AdaptivePlaneFit(factor=4, ridge_px2=1e-3)
+    for spacing, level in ((3, 0.0), (18, 0.5)):
+        sparse = np.zeros((128, 128), np.float32)
+        for r in np.arange(rng.uniform(0, spacing), 128, spacing):
+            for c in np.arange(rng.uniform(0, spacing), 128, spacing):
+                sparse[int(r), int(c)] = tilted(int(r), int(c))
+        with torch.no_grad():
+            plane, weight, chosen = fit(
+                torch.from_numpy(sparse)[None, None], torch.full((1, 1, 1, 1), 80.0)
+            )
+        rows, cols = np.mgrid[0:32, 0:32] * 4 + 1.5
+        inner = (slice(6, -6), slice(6, -6))
+        assert np.abs(plane[0, 0].numpy() - tilted(rows, cols))[inner].max() < 2e-3
+        assert np.median(chosen[0, 0].numpy()[inner]) == pytest.approx(level)
+        assert (weight[0, 0].numpy()[inner] >= 1.0).all()
+    lone = np.zeros((256, 256), np.float32)
+    lone[10, 10] = 50.0
+    with torch.no_grad():
+        plane, weight, chosen = fit(torch.from_numpy(lone)[None, None], torch.zeros(1, 1, 1, 1))
+    assert weight[0, 0, -1, -1] == 0 and plane[0, 0, -1, -1] == 0 and chosen[0, 0, -1, -1] == 1
 
 
-def test_a_fresh_plane_model_answers_the_plane_fit_itself():
+def test_a_fresh_model_answers_the_plane_fit_itself():
     """The residual head starts at zero: training starts from the interpolation."""
     torch.manual_seed(0)
     model = build_model("sdcnet").eval()
     rng = np.random.default_rng(2)
     sparse = beam_grid(128, 128, lambda r, c: 120.0 + 0.02 * c + 0.01 * r, rng)
     with torch.no_grad():
-        depth, _ = model(torch.rand(1, 1, 128, 128), torch.from_numpy(sparse)[None, None])
+        depth, _, _ = model(
+            torch.rand(1, 1, 128, 128),
+            torch.from_numpy(sparse)[None, None],
+            torch.full((1, 1, 1, 1), 7939.2),
+        )
     rows, cols = np.mgrid[0:128, 0:128]
     truth = 120.0 + 0.02 * cols + 0.01 * rows
     inner = (slice(16, 112), slice(16, 112))

@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 
 from sdcnet.camera import PAPER_CAMERA
-from sdcnet.pointcloud import back_project, ply_bytes, read_ply, statistical_outliers, write_ply
+from sdcnet.pointcloud import (
+    back_project,
+    ply_bytes,
+    point_pixels,
+    read_ply,
+    statistical_outliers,
+    write_ply,
+)
 
 K = PAPER_CAMERA.intrinsics().scaled(256, 256)
 
@@ -27,6 +34,9 @@ def test_back_projection_inverts_the_camera():
     np.testing.assert_allclose(u, cols, atol=1e-3)
     np.testing.assert_allclose(v, rows, atol=1e-3)
     np.testing.assert_array_equal(points[:, 2], depth[rows, cols])
+    pixel_rows, pixel_cols = point_pixels(points, K)  # and back to their pixels, exactly
+    np.testing.assert_array_equal(pixel_rows, rows)
+    np.testing.assert_array_equal(pixel_cols, cols)
 
 
 def test_back_projection_of_nothing_is_an_empty_cloud():
@@ -87,11 +97,34 @@ def test_ply_round_trip(tmp_path):
     header = path.read_bytes().split(b"end_header\n")[0].decode()
     assert header.splitlines()[:2] == ["ply", "format binary_little_endian 1.0"]
     assert "element vertex 1000" in header and "property float z" in header
-    loaded, comments = read_ply(path)
-    np.testing.assert_array_equal(loaded, points)
-    assert comments == ["made by a test", "metres"]
-    empty, _ = read_ply(ply_bytes(np.zeros((0, 3), np.float32)))
-    assert empty.shape == (0, 3)
+    cloud = read_ply(path)
+    np.testing.assert_array_equal(cloud.points, points)
+    assert cloud.comments == ["made by a test", "metres"] and cloud.properties == {}
+    assert read_ply(ply_bytes(np.zeros((0, 3), np.float32))).points.shape == (0, 3)
+
+
+def test_ply_vertices_carry_their_properties_after_x_y_z():
+    points = np.random.default_rng(1).normal(size=(50, 3)).astype(np.float32)
+    sigma = np.linspace(0.01, 0.5, 50, dtype=np.float32)
+    data = ply_bytes(points, ("metres",), {"sigma": sigma})
+    header, vertices = data.split(b"end_header\n")
+    assert header.decode().splitlines()[-4:] == [
+        "property float x",
+        "property float y",
+        "property float z",
+        "property float sigma",
+    ]
+    rows = np.frombuffer(vertices, "<f4").reshape(50, 4)  # interleaved, a vertex a row
+    np.testing.assert_array_equal(rows[:, :3], points)
+    np.testing.assert_array_equal(rows[:, 3], sigma)
+    cloud = read_ply(data)
+    np.testing.assert_array_equal(cloud.points, points)
+    assert list(cloud.properties) == ["sigma"]
+    np.testing.assert_array_equal(cloud.properties["sigma"], sigma)
+    with pytest.raises(ValueError, match="one value per point"):
+        ply_bytes(points, (), {"sigma": sigma[:-1]})
+    with pytest.raises(ValueError, match="cannot be a PLY property"):
+        ply_bytes(points, (), {"z": sigma})
 
 
 @pytest.mark.parametrize(
@@ -104,6 +137,11 @@ def test_ply_round_trip(tmp_path):
         (
             b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty double x\n"
             b"end_header\n",
+            "layout",
+        ),
+        (
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n"
+            b"property float y\nproperty float z\nproperty uchar red\nend_header\n",
             "layout",
         ),
     ],

@@ -3,19 +3,26 @@ bookkeeping (success, frames without a pose, the tables)."""
 
 import math
 
+import numpy as np
 import pytest
+import trimesh
 
+from sdcnet.rigid import Pose, axis_angle, pose_errors
 from sdcnet.runtime import OnnxModel
 from sdcnet.service.settings import shipped_model_path
 from sdcnet.targets import prepare_target
-from sdcnet.training.data.generate import GenerateConfig, build_model
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft
+from sdcnet.training.evaluate import network
 from sdcnet.training.pose_eval import (
     RAW,
     FrameResult,
     evaluate_frames,
+    perturbed,
     report,
+    sigma_coverage,
     single_frames,
     summary,
+    symmetric_errors,
 )
 
 
@@ -47,6 +54,49 @@ def test_success_needs_both_errors_within_bounds_and_a_missing_pose_fails():
     assert s["translation_mean_pct_range"] == pytest.approx(100 * (0.1 + 0.1 + 0.3) / 3 / 100.0)
 
 
+def test_answers_marked_reliable_but_wrong_are_counted_beside_the_verdict_mix():
+    frames = [
+        _frame(0.5, 0.01, verdict="reliable"),
+        _frame(3.0, 0.01, verdict="reliable"),  # wrong in rotation
+        _frame(0.5, 0.5, verdict="reliable"),  # wrong in translation
+        _frame(170.0, 0.1, verdict="ambiguous", reasons=("symmetric_twins",)),
+        _frame(math.nan, math.nan),  # no pose: no verdict
+    ]
+    s = summary(frames)
+    assert s["reliable_but_wrong"] == 2
+    assert (s["verdict_reliable_pct"], s["verdict_ambiguous_pct"]) == (60.0, 20.0)
+    assert s["verdict_unreliable_pct"] == 0.0
+    assert (
+        "Over all 5 answers: 3 marked reliable, of which 2 wrong"
+        in report({"run": frames}, ["completed"])[0]
+    )
+
+
+def test_sigma_coverage_counts_errors_within_1_2_3_sigma():
+    frames = [
+        _frame(0.5, 0.01, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # within 1
+        _frame(1.5, 0.05, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # 2, 3
+        _frame(0.5, 0.01),  # no sigma: not covered
+        _frame(5.0, 0.01, rotation_sigma_deg=1.0, translation_sigma_m=0.02),  # beyond 3, 1
+    ]
+    rotation, translation = sigma_coverage(frames)
+    assert rotation == [25.0, 50.0, 50.0] and translation == [50.0, 50.0, 75.0]
+
+
+def test_errors_modulo_symmetry_forgive_a_twin_and_inits_are_perturbed_as_asked():
+    box = trimesh.creation.box((3.0, 2.0, 1.0))
+    target = prepare_target("box", box.vertices, box.faces)
+    truth = Pose(axis_angle([0.2, 1.0, -0.3], 1.1), np.array([0.1, 0.2, 60.0]))
+    twin = Pose.from_matrix(truth.matrix() @ target.model.symmetries[0])
+    assert pose_errors(twin, truth)[0] > 90
+    rotation_deg, translation_m = symmetric_errors(target, twin, truth)
+    assert rotation_deg < 0.5 and translation_m < 0.01
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        rotation_deg, translation_m = pose_errors(perturbed(truth, 10.0, 1.0, rng), truth)
+        assert rotation_deg == pytest.approx(10.0) and translation_m == pytest.approx(1.0)
+
+
 def test_the_report_separates_clouds_modes_and_spacecraft():
     frames = [
         _frame(0.5, 0.01),
@@ -64,11 +114,16 @@ def test_the_shipped_models_cloud_gives_the_pose_of_a_rendered_frame():
     """End to end as ``sdc-train pose`` runs it: a procedural spacecraft rendered at 1024 x
     1024 by the generator, completed by the shipped model, registered from scratch."""
     config = GenerateConfig(models=1, views=1, seed=3, split=(1, 0, 0))
-    craft = build_model(config, 0)
+    craft = build_spacecraft(config, 0)
     target = prepare_target(craft.name, craft.mesh.vertices, craft.mesh.faces)
     onnx = OnnxModel(shipped_model_path(), threads=2)
     frames = single_frames(config, {0: (craft, target)}, 1, "test")
-    results = {r.cloud: r for r in evaluate_frames(frames, {"completed": (onnx.run, onnx.stride)})}
+    results = {
+        r.cloud: r
+        for r in evaluate_frames(
+            frames, {"completed": network(onnx.run, onnx.stride, onnx.info.work_pixels)}
+        )
+    }
     assert set(results) == {"completed", RAW}
     completed = results["completed"]
     assert completed.success, completed

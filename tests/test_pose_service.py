@@ -11,6 +11,8 @@ subprocess.
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 import subprocess
 import sys
@@ -33,6 +35,7 @@ from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.rigid import Pose, axis_angle, parse_pose, pose_errors
 from sdcnet.service.app import create_app
+from sdcnet.service.pose import POSE_SIGMA_QUANTILE
 from sdcnet.service.settings import Settings
 
 LONGEST_M = 9.0
@@ -98,11 +101,12 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     response = post(client, sample, target="probe")
     assert response.status_code == 200, response.text
     phases = [part.split(";")[0] for part in response.headers["server-timing"].split(", ")]
-    assert phases == ["decode", "queue", "inference", "cloud", "registration"]
+    assert phases == ["decode", "queue", "inference", "cloud", "registration", "wait"]
     answer = response.json()
     rotation_deg, translation_m = pose_errors(parse_pose(answer["pose"]), truth)
     assert rotation_deg < ROTATION_DEG and translation_m < TRANSLATION_M
     assert not answer["tracked"] and answer["hypotheses"] > 1 and not answer["ambiguous"]
+    assert answer["verdict"] == "reliable" and answer["reasons"] == []
     assert answer["completion"]["returns"] == sample.meta["returns"]
     assert answer["completion"]["point_count"] > 1000
     assert 0.5 < answer["fitness"] <= 1 and answer["returns_rmse_m"] < 0.01
@@ -112,9 +116,43 @@ def test_the_pose_of_a_frame_from_scratch_then_tracked(client, frames):
     again = post(client, sample, target="probe", init=json.dumps(answer["pose"])).json()
     assert again["tracked"] and again["hypotheses"] == 1 and again["timings"]["search_ms"] == 0
     assert pose_errors(parse_pose(again["pose"]), truth)[0] < ROTATION_DEG
+    assert again["verdict"] == "reliable"
+    # From a pose the frame contradicts (turned a quarter, metres away): the answer leaves it.
+    R = axis_angle([0, 1, 0], np.pi / 2) @ truth.R
+    lost = json.dumps({"R": R.tolist(), "t": (truth.t + np.array([3.0, 0, 0])).tolist()})
+    left = post(client, sample, target="probe", init=lost).json()
+    assert not left["tracked"] and "left_init" in left["reasons"]
+    assert left["verdict"] == "ambiguous"
     # A quaternion init works as well as a matrix.
     quaternion = {"quaternion_wxyz": answer["pose"]["quaternion_wxyz"], "t": answer["pose"]["t"]}
     assert post(client, sample, target="probe", init=json.dumps(quaternion)).json()["tracked"]
+
+
+def test_the_registration_gets_the_points_whose_sigma_it_can_trust(client, frames):
+    """The completed points registered are those of sigma up to the frame's 90th percentile,
+    or up to max_sigma when the request gives it: counted against POST /complete's sigma of
+    the same frame."""
+    sample, truth = frames[0]
+    whole = client.post("/complete", files=files_of(sample)).json()
+    depth, mask, sigma = (
+        np.load(io.BytesIO(base64.b64decode(whole[k]["npy_base64"])), allow_pickle=False)
+        for k in ("depth", "mask", "sigma")
+    )
+    valid = mask.astype(bool) & (depth > 0)
+    limit = float(np.quantile(sigma[valid], POSE_SIGMA_QUANTILE))
+    answer = post(client, sample, target="probe").json()
+    max_sigma = float(np.quantile(sigma[valid], 0.5))
+    given = post(
+        client, sample, target="probe", init=json.dumps(answer["pose"]), max_sigma=repr(max_sigma)
+    ).json()
+    for registered, cut in ((answer, limit), (given, max_sigma)):
+        assert registered["sigma_limit_m"] == cut
+        completion = registered["completion"]
+        assert completion["point_count"] == np.count_nonzero(valid & (sigma <= cut))
+        uncertain = np.count_nonzero(valid & (sigma > cut))
+        assert completion["uncertain_removed"] == uncertain > 0
+        rotation_deg, translation_m = pose_errors(parse_pose(registered["pose"]), truth)
+        assert rotation_deg < ROTATION_DEG and translation_m < TRANSLATION_M
 
 
 def test_the_returns_as_a_list_give_the_pose_of_the_dense_map(client, frames):
@@ -148,6 +186,16 @@ def test_the_model_lists_the_targets_and_their_surface_samples_draw_them(client)
             "invalid_init",
             "not a rotation",
         ),
+        # read with a size and a depth limit: a RecursionError was a 500
+        ({"target": "probe", "init": "[" * 100_000 + "]" * 100_000}, "invalid_init", "16384"),
+        ({"target": "probe", "init": "[" * 900 + "]" * 900}, "invalid_init", "nested more"),
+        (
+            {"target": "probe", "init": '{"t": [' + "1" * 5000 + ', 0, 0], "R": []}'},
+            "invalid_init",
+            "'t' holds NaN or infinite values",
+        ),
+        ({"target": "probe", "cx": "1e308"}, "invalid_intrinsics", "principal point"),
+        ({"target": "probe", "max_sigma": "-1"}, "invalid_max_sigma", "positive finite number"),
         ({}, "invalid_request", "target"),
         ({"target": "probe", "targett": "x"}, "invalid_request", "unknown form field"),
     ],
@@ -202,6 +250,12 @@ def test_sdc_client_pose_prints_the_pose_and_draws_the_target(url, frames, tmp_p
     printed = capsys.readouterr().out
     assert "pose of probe" in printed and "from scratch" in printed
     answer = json.loads((tmp_path / "out" / "pose.json").read_text())
+    completion = answer["completion"]
+    assert (
+        f"cloud     {completion['point_count']:,} points registered (depth sigma <= "
+        f"{100 * answer['sigma_limit_m']:.1f} cm; {completion['uncertain_removed']:,} more "
+        "uncertain left out)"
+    ) in printed
     assert pose_errors(parse_pose(answer["pose"]), truth)[0] < ROTATION_DEG
     preview = cv2.imread(str(tmp_path / "out" / "preview.png"))
     assert preview.shape[0] == 320 and preview.shape[1] >= 2 * 320
@@ -210,11 +264,33 @@ def test_sdc_client_pose_prints_the_pose_and_draws_the_target(url, frames, tmp_p
     assert np.count_nonzero(np.ptp(drawn.astype(int), axis=2) > 30) > 200
     # Tracking from the written answer.
     assert client_main([*argv, "--init", str(tmp_path / "out" / "pose.json")]) == 0
-    assert "tracked" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "tracked" in printed and f"verdict   {answer['verdict']}" in printed
     assert client_main([*argv[:4], "nope", *argv[5:]]) == 3
     assert "unknown_target" in capsys.readouterr().err
     assert client_main([*argv, "--init", "{not json"]) == 2
     assert "--init" in capsys.readouterr().err
+
+
+def test_sdc_client_track_runs_a_sequence_from_its_own_motion(url, frames, tmp_path, capsys):
+    """Frames a, b (the same view) then c (another pose): b is tracked from a's answer, c
+    from the motion of a and b, which c contradicts."""
+    folder = tmp_path / "sequence"
+    folder.mkdir()
+    for name, (sample, _) in zip("abc", [frames[0], frames[0], frames[1]], strict=True):
+        (folder / f"{name}.png").write_bytes(png_bytes(sample.gray))
+        write_returns_csv(folder / f"{name}.csv", returns_from_dense(sample.sparse))
+    argv = ["track", str(folder), "--target", "probe", "--url", url, "--out", str(tmp_path)]
+    assert client_main(argv) == 0
+    printed = capsys.readouterr().out.splitlines()
+    answers = [json.loads(line) for line in (tmp_path / "poses.jsonl").read_text().splitlines()]
+    assert [a["frame"] for a in answers] == ["a", "b", "c"]
+    assert [a["tracked"] for a in answers] == [False, True, False]
+    assert answers[1]["verdict"] == "reliable" and "left_init" in answers[2]["reasons"]
+    assert pose_errors(parse_pose(answers[2]["pose"]), frames[1][1])[0] < ROTATION_DEG
+    assert printed[0].startswith("a: reliable, from scratch, t [")
+    assert printed[1].startswith("b: reliable, tracked")
+    assert printed[2].startswith("c: ambiguous (") and "left its init" in printed[2]
 
 
 def test_the_clients_form_has_a_boundary_that_is_in_no_part():
@@ -228,13 +304,14 @@ def test_the_python_api_tracks_and_fetches_the_targets_samples(url, frames):
     with Client(url) as client:
         first = client.pose(sample.gray, sample.sparse, "probe")
         listed = client.pose(sample.gray, None, "probe", returns=returns_from_dense(sample.sparse))
-        again = client.pose(sample.gray, sample.sparse, "probe", init=first.pose)
+        again = client.pose(sample.gray, sample.sparse, "probe", init=first.pose, max_sigma=0.09)
         points = client.target_points("probe")
         with pytest.raises(ServiceError, match="unknown_target"):
             client.target_points("nope")
         with pytest.raises(ServiceError, match="unknown_target"):
             client.pose(sample.gray, sample.sparse, "no such/target")
     assert not first.answer["tracked"] and again.answer["tracked"]
+    assert again.answer["sigma_limit_m"] == 0.09 != first.answer["sigma_limit_m"]
     assert pose_errors(first.pose, truth)[0] < ROTATION_DEG
     assert listed.answer["pose"] == first.answer["pose"]  # what the client sends is the frame
     assert pose_errors(again.pose, truth)[0] < ROTATION_DEG and first.latency_s > 0
@@ -251,6 +328,7 @@ def test_a_symmetric_target_is_answered_ambiguous_with_its_alternatives(tmp_path
     with TestClient(create_app(settings)) as http:
         answer = post(http, sample, target="box").json()
     assert answer["ambiguous"] and answer["alternatives"]
+    assert answer["verdict"] == "ambiguous" and "symmetric_twins" in answer["reasons"]
     # Twins: other rotations of the box in the same place, the truth among them.
     best = parse_pose(answer["pose"])
     twins = [parse_pose(a["pose"]) for a in answer["alternatives"]]

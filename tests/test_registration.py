@@ -9,7 +9,16 @@ import small_gicp
 import trimesh
 
 from sdcnet.devtools.targets import probe_mesh
-from sdcnet.registration import TargetModel, UnusableCloudError, estimate_pose
+from sdcnet.registration import (
+    DEFAULT_CONFIG,
+    REASONS,
+    Evidence,
+    RegistrationConfig,
+    TargetModel,
+    UnusableCloudError,
+    estimate_pose,
+    judge,
+)
 from sdcnet.rigid import (
     Pose,
     axis_angle,
@@ -96,6 +105,98 @@ def test_a_symmetric_target_reports_its_ambiguity(shape):
     assert min(pose_errors(a.pose, estimate.pose)[0] for a in estimate.alternatives) > 10
     off = Pose(axis_angle([1.0, 0, 0], np.radians(5)) @ truth.R, truth.t)
     assert symmetric_distance(model, off, truth) > 0.03
+
+
+@pytest.fixture(scope="module")
+def box():
+    shape = trimesh.creation.box((3.0, 2.0, 1.0))
+    return shape, TargetModel(shape.vertices, shape.faces)
+
+
+def near(truth: Pose, rotation_deg: float, translation_m: float, seed: int) -> Pose:
+    """``truth`` turned ``rotation_deg`` about a random axis, moved ``translation_m``."""
+    rng = np.random.default_rng(seed)
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    R = axis_angle(axis / np.linalg.norm(axis), np.radians(rotation_deg)) @ truth.R
+    return Pose(R, truth.t + translation_m * direction / np.linalg.norm(direction))
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("search", [False, True], ids=["refined", "searched"])
+def test_a_symmetric_target_tracked_from_a_close_init_stays_in_its_basin(box, seed, search):
+    """From 5 degrees and 0.3 m off, the answer is the truth, not one of its twins that fit
+    as well: also when the search runs (``searched``: tracking made to fall back always)."""
+    shape, model = box
+    if search:
+        config = RegistrationConfig(tracking_min_consistency=1.01)
+        model = TargetModel(shape.vertices, shape.faces, config)
+    truth = Pose(
+        axis_angle([0.3, 1.0, -0.2 + 0.3 * seed], 0.6 + 0.5 * seed), np.array([0.2, -0.1, 50.0])
+    )
+    cloud = visible_samples(shape, truth, seed=seed)
+    estimate = estimate_pose(model, cloud, returns=cloud[::10], init=near(truth, 5, 0.3, seed))
+    rotation_deg, translation_m = pose_errors(estimate.pose, truth)
+    assert rotation_deg < 2 and translation_m < 0.2
+    assert estimate.tracked and "left_init" not in estimate.reasons
+    assert estimate.verdict == "ambiguous"  # the twins fit as well: never "reliable"
+
+
+@pytest.mark.parametrize("init", [False, True], ids=["scratch", "tracked"])
+def test_a_cloud_that_fits_two_poses_as_well_is_never_reliable(box, init):
+    shape, model = box
+    truth = Pose(axis_angle([0.2, 1.0, -0.3], 1.1), np.array([0.1, 0.2, 60.0]))
+    cloud = visible_samples(shape, truth, seed=3)
+    estimate = estimate_pose(model, cloud, cloud[::10], near(truth, 3, 0.1, 0) if init else None)
+    assert estimate.verdict == "ambiguous" and "symmetric_twins" in estimate.reasons
+
+
+def test_a_cloud_that_fits_nothing_is_unreliable(spacecraft, box):
+    """Points of a box registered to the probe, and a random blob to the box."""
+    shape, box_model = box
+    _, probe = spacecraft
+    truth = Pose(axis_angle([0.2, 1.0, -0.3], 1.1), np.array([0.1, 0.2, 60.0]))
+    blob = np.random.default_rng(0).normal(size=(3000, 3)) * 0.8 + truth.t
+    for model, cloud in [(probe, visible_samples(shape, truth, seed=3)), (box_model, blob)]:
+        estimate = estimate_pose(model, cloud, returns=cloud[::10])
+        assert estimate.verdict == "unreliable" and "poor_fit" in estimate.reasons
+
+
+def test_an_answer_that_leaves_its_init_says_so(spacecraft):
+    mesh, model = spacecraft
+    truth = Pose(axis_angle([1.0, 0.2, 0.1], 0.7), np.array([-1.0, 0.4, 90.0]))
+    cloud = visible_samples(mesh, truth, seed=2)
+    lost = Pose(axis_angle([0, 1, 0], np.pi / 2) @ truth.R, truth.t + np.array([3.0, 0, 0]))
+    estimate = estimate_pose(model, cloud, returns=cloud, init=lost)
+    assert not estimate.tracked and "left_init" in estimate.reasons
+    assert estimate.verdict == "ambiguous"
+    fresh = estimate_pose(model, cloud, returns=cloud)
+    assert fresh.verdict == "reliable" and fresh.reasons == []
+
+
+GOOD = Evidence(
+    consistency=0.9, runner_up_consistency=0.3, twins=0, points=500, returns=400, left_init=False
+)
+
+
+@pytest.mark.parametrize(
+    "change, verdict, reason",
+    [
+        ({}, "reliable", None),
+        ({"consistency": DEFAULT_CONFIG.reliable_min_consistency - 0.01}, "unreliable", "poor_fit"),
+        ({"points": DEFAULT_CONFIG.reliable_min_points - 1}, "unreliable", "too_few_points"),
+        ({"returns": 0}, "unreliable", "too_few_returns"),
+        ({"twins": 1}, "ambiguous", "symmetric_twins"),
+        ({"runner_up_consistency": 0.88}, "ambiguous", "close_alternative"),
+        ({"runner_up_consistency": None}, "reliable", None),
+        ({"left_init": True}, "ambiguous", "left_init"),
+        ({"left_init": True, "returns": 0}, "unreliable", "too_few_returns"),
+    ],
+)
+def test_the_verdict_follows_from_the_evidence(change, verdict, reason):
+    got, reasons = judge(Evidence(**{**GOOD.__dict__, **change}))
+    assert got == verdict
+    assert reasons == [] if reason is None else reason in reasons
+    assert all(r in REASONS for r in reasons)
 
 
 def test_an_asymmetric_real_shape_has_no_symmetry(spacecraft):

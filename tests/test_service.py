@@ -28,22 +28,29 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from sdcnet.calibration import CameraCalibration, Undistorter
 from sdcnet.camera import Intrinsics
+from sdcnet.client.api import Client
 from sdcnet.devtools.frames import png_bytes, synthetic_frame
 from sdcnet.devtools.models import TINY_VERSION
 from sdcnet.devtools.serving import running_service
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project, read_ply, statistical_outliers
+from sdcnet.returns import returns_from_dense, scatter_nearest
 from sdcnet.runtime import OnnxModel
+from sdcnet.service.admission import slot_routes
 from sdcnet.service.app import create_app
+from sdcnet.service.camera import ANSWER_FRAME
 from sdcnet.service.deps import get_engine
 from sdcnet.service.inference import Engine
+from sdcnet.service.routes import ROUTERS
 from sdcnet.service.settings import Settings, get_settings
 
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 8 * 2**20
 MAX_IN_FLIGHT = 2
+MAX_REQUESTS = 4
 
 
 def settings(model_path) -> Settings:
@@ -51,6 +58,7 @@ def settings(model_path) -> Settings:
         model_path=model_path,
         threads=1,
         max_in_flight=MAX_IN_FLIGHT,
+        max_requests=MAX_REQUESTS,
         max_pixels=MAX_PIXELS,
         max_upload_bytes=MAX_UPLOAD_BYTES,
         retry_after_s=2,
@@ -67,6 +75,7 @@ def url(model_path, tmp_path_factory):
     log = tmp_path_factory.mktemp("service") / "serve.log"
     flags = [f"--max-in-flight={MAX_IN_FLIGHT}", f"--max-pixels={MAX_PIXELS}"]
     flags += [f"--max-upload-bytes={MAX_UPLOAD_BYTES}", "--retry-after=2"]
+    flags += [f"--max-requests={MAX_REQUESTS}"]
     with running_service(model_path, log, *flags) as address:
         yield address
 
@@ -127,6 +136,7 @@ def test_probes_answer_under_short_and_kserve_names(client):
     for path in ("/health", "/v2/health/live"):
         response = client.get(path)
         assert response.status_code == 200 and response.json() == {"live": True}
+        assert "server" not in response.headers  # uvicorn's "Server: uvicorn" is off
     for path in ("/ready", "/v2/health/ready", "/v2/models/sdcnet/ready"):
         response = client.get(path)
         assert response.status_code == 200 and response.json() == {"ready": True}
@@ -148,13 +158,18 @@ def test_model_metadata(client):
         "depth": ("FP32", [-1, -1]),
         "mask": ("UINT8", [-1, -1]),
         "points": ("FP32", [-1, 3]),
+        "sigma": ("FP32", [-1, -1]),
     }
     assert "metres" in meta["inputs"][1]["description"]
     assert meta["intrinsics"]["fx"] == pytest.approx(7939.2, abs=0.1)
+    assert meta["default_intrinsics"]["fx"] == meta["intrinsics"]["fx"]  # no --camera
+    assert meta["camera"] is None
     assert meta["limits"] == {
         "max_pixels": MAX_PIXELS,
+        "max_returns": Settings.model_fields["max_returns"].default,
         "max_upload_bytes": MAX_UPLOAD_BYTES,
         "max_in_flight": MAX_IN_FLIGHT,
+        "max_requests": MAX_REQUESTS,
     }
 
 
@@ -163,19 +178,26 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     response = post(client, frame_files())
     assert response.status_code == 200, response.text
     body = response.json()
-    depth, mask, points = (decoded(body[k]) for k in ("depth", "mask", "points"))
+    depth, mask, points, sigma = (decoded(body[k]) for k in ("depth", "mask", "points", "sigma"))
 
     direct_model = OnnxModel(model_path, provider="cpu", threads=1)
-    # a 256 px frame of the paper's camera: the service resamples it x4 to the model's scale
-    direct = complete(direct_model.run, s.gray, s.sparse, direct_model.stride, zoom=4.0)
-    K = direct_model.info.intrinsics.scaled(256, 256)
+    K = direct_model.info.intrinsics.scaled(256, 256)  # the paper's camera at 256 px
+    info = direct_model.info
+    direct = complete(direct_model.run, s.gray, s.sparse, K.fx, info.stride, info.work_pixels)
     assert depth.dtype == np.float32 and mask.dtype == np.uint8 and points.dtype == np.float32
     np.testing.assert_array_equal(depth, direct.depth)
     np.testing.assert_array_equal(mask, direct.mask.astype(np.uint8))
     valid = direct.mask & (direct.depth > 0)
     np.testing.assert_array_equal(points, back_project(direct.depth, valid, K))
-    # the tiny model calls bright pixels spacecraft: the drawn craft, not the dim stars
-    np.testing.assert_array_equal(mask.astype(bool), s.gray > 127)
+    # the tiny model's sigma is a tenth of the gray image (metres), 0 off the mask
+    assert sigma.dtype == np.float32 and np.isfinite(sigma).all()
+    np.testing.assert_array_equal(sigma, direct.sigma)
+    assert not sigma[~direct.mask].any() and sigma[direct.mask].min() > 0
+    assert body["uncertain_removed"] == 0
+    # the tiny model calls bright pixels spacecraft: the drawn craft, not the dim stars (its
+    # outline within resampling to the working grid and back)
+    differ = mask.astype(bool) != (s.gray > 127)
+    assert differ.sum() <= 0.01 * (s.gray > 127).sum()
     assert len(points) == body["point_count"] == np.count_nonzero(depth) > 3000
     assert np.abs(depth - s.depth)[depth > 0].max() < 0.5  # a fill of returns on a plane
     assert body["model_version"] == TINY_VERSION
@@ -186,10 +208,16 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     assert "inference;dur=" in response.headers["server-timing"]
 
 
-def test_odd_focal_lengths_are_served_at_the_nearest_supported_scale(client):
-    for fx in ("1e-9", "1.0", "1e9"):
+def test_intrinsics_are_those_of_a_pinhole_of_the_frame_or_422(client):
+    """Focal lengths from a 150 degree field of view (34.3 px across 256) to 1e9 px are
+    served at the fixed cost of a frame; shorter ones, and a principal point far outside, get
+    422 on every route (the Open Inference Protocol's: tests/test_wire.py)."""
+    for fx in ("34.5", "1e9"):
         response = post(client, frame_files(), {"fx": fx}, format="npz")
         assert response.status_code == 200, response.text
+    for fields in ({"fx": "1e-300"}, {"fx": "1"}, {"fy": "34"}, {"cx": "1e308"}, {"cy": "-129"}):
+        error = assert_error_shape(post(client, frame_files(), fields), 422, "invalid_intrinsics")
+        assert "px" in error["message"] or "principal point" in error["message"]
 
 
 def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
@@ -200,14 +228,16 @@ def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
     assert npz.status_code == ply.status_code == 200
     assert 'filename="sdcnet.npz"' in npz.headers["content-disposition"]
     names = zipfile.ZipFile(io.BytesIO(npz.content)).namelist()  # any zip reader opens it
-    assert names == ["depth.npy", "mask.npy", "points.npy", "meta.json"]
+    assert names == ["depth.npy", "mask.npy", "points.npy", "sigma.npy", "meta.json"]
 
     with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
-        assert sorted(archive.files) == ["depth", "mask", "meta.json", "points"]
+        assert sorted(archive.files) == ["depth", "mask", "meta.json", "points", "sigma"]
         depth, mask, points = archive["depth"], archive["mask"], archive["points"]
-        meta = json.loads(archive["meta.json"])
+        sigma, meta = archive["sigma"], json.loads(archive["meta.json"])
     np.testing.assert_array_equal(depth, decoded(as_json["depth"]))
     np.testing.assert_array_equal(points, decoded(as_json["points"]))
+    np.testing.assert_array_equal(sigma, decoded(as_json["sigma"]))
+    assert sigma.dtype == np.float32 and np.isfinite(sigma).all() and sigma.max() > 0
     assert meta["intrinsics"] == {"fx": 2000.0, "fy": 2020.0, "cx": 100.5, "cy": 130.0}
 
     # the points are the kept pixels, back-projected with the intrinsics given
@@ -217,9 +247,43 @@ def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
     np.testing.assert_array_equal(points, back_project(depth, kept, K))
     assert meta["outliers_removed"] == valid.sum() - len(points)
 
-    cloud, comments = read_ply(ply.content)
-    np.testing.assert_array_equal(cloud, points)
-    assert f"model_version {TINY_VERSION}" in comments
+    cloud = read_ply(ply.content)
+    np.testing.assert_array_equal(cloud.points, points)
+    np.testing.assert_array_equal(cloud.properties["sigma"], sigma[kept])  # each point's own
+    assert f"model_version {TINY_VERSION}" in cloud.comments
+
+
+def test_max_sigma_leaves_exactly_the_points_above_it_out_of_every_answer(client):
+    """The points are those of the pixels whose sigma is at most max_sigma (then the outlier
+    removal, on those); depth, mask and sigma stay whole; the summary counts the rest."""
+    whole = post(client, frame_files()).json()
+    depth, mask, sigma = (decoded(whole[k]) for k in ("depth", "mask", "sigma"))
+    valid = mask.astype(bool) & (depth > 0)
+    max_sigma = float(np.median(sigma[valid]))  # half the points above it
+    trusted = valid & (sigma <= max_sigma)
+    K = Intrinsics(**whole["intrinsics"], width=256, height=256)
+    fields = {"max_sigma": repr(max_sigma)}
+    as_json = post(client, frame_files(), fields).json()
+    for name, array in (("depth", depth), ("mask", mask), ("sigma", sigma)):
+        np.testing.assert_array_equal(decoded(as_json[name]), array, err_msg=name)
+    np.testing.assert_array_equal(decoded(as_json["points"]), back_project(depth, trusted, K))
+    assert as_json["uncertain_removed"] == np.count_nonzero(valid & (sigma > max_sigma)) > 100
+    assert as_json["point_count"] == np.count_nonzero(trusted)
+
+    npz = post(client, frame_files(), {**fields, "outlier_removal": "true"}, format="npz")
+    with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
+        kept = statistical_outliers(depth, trusted, K)
+        np.testing.assert_array_equal(archive["points"], back_project(depth, kept, K))
+        np.testing.assert_array_equal(archive["sigma"], sigma)
+        meta = json.loads(archive["meta.json"])
+    assert meta["uncertain_removed"] == as_json["uncertain_removed"]
+    assert meta["outliers_removed"] == np.count_nonzero(trusted) - np.count_nonzero(kept) > 0
+
+    cloud = read_ply(post(client, frame_files(), fields, format="ply").content)
+    np.testing.assert_array_equal(cloud.points, decoded(as_json["points"]))
+    np.testing.assert_array_equal(cloud.properties["sigma"], sigma[trusted])
+    assert cloud.properties["sigma"].max() <= max_sigma
+    assert f"uncertain_removed {as_json['uncertain_removed']}" in cloud.comments
 
 
 @pytest.mark.parametrize(
@@ -288,6 +352,10 @@ def bad_request(case: str) -> tuple[dict, dict | None, dict]:
         "scale_with_npy": {"depth_scale": "0.01"},
         "negative_fx": {"fx": "-5"},
         "nan_cx": {"cx": "nan"},
+        "zero_max_sigma": {"max_sigma": "0"},
+        "negative_max_sigma": {"max_sigma": "-0.05"},
+        "infinite_max_sigma": {"max_sigma": "inf"},
+        "text_max_sigma": {"max_sigma": "5 cm"},
     }.get(case)
     query = {"unknown_format": {"format": "xml"}}.get(case, {})
     return files, fields, query
@@ -319,8 +387,12 @@ BAD_INPUTS = {
     "png_sparse_without_scale": (422, "invalid_request"),
     "png8_sparse": (422, "wrong_dtype"),
     "scale_with_npy": (422, "invalid_request"),
-    "negative_fx": (422, "invalid_request"),
+    "negative_fx": (422, "invalid_intrinsics"),
     "nan_cx": (422, "invalid_request"),
+    "zero_max_sigma": (422, "invalid_max_sigma"),
+    "negative_max_sigma": (422, "invalid_max_sigma"),
+    "infinite_max_sigma": (422, "invalid_request"),
+    "text_max_sigma": (422, "invalid_request"),
 }
 
 
@@ -460,6 +532,18 @@ def test_metrics_move_with_requests(client):
 # -- in process only: what dependency overrides reach --------------------------------------
 
 
+def test_the_routes_that_run_the_model_and_only_they_take_an_inference_slot():
+    """``Admission`` bounds the routes that declare ``TAKES_SLOT``; probes, metadata and
+    metrics stay unbounded."""
+    routes = slot_routes(ROUTERS)
+    declared = sorted((method, route.path) for route in routes for method in route.methods)
+    assert declared == [
+        ("POST", "/complete"),
+        ("POST", "/pose"),
+        ("POST", "/v2/models/sdcnet/infer"),
+    ]
+
+
 def test_without_a_model_the_probes_and_requests_say_not_ready(model_path):
     """No lifespan has run (no ``with``): no model yet, as while starting or stopping."""
     http = TestClient(create_app(settings(model_path)))
@@ -507,6 +591,100 @@ def test_the_routes_take_their_limits_from_the_settings_dependency(model_path, e
         assert_error_shape(post(http, frame_files()), 413, "too_large")
 
 
+# -- the camera: sdc-serve --camera ---------------------------------------------------------
+
+#: A 256 x 256 camera with a strong barrel lens, and its file as OpenCV's calibration writes it.
+CAMERA = CameraCalibration(
+    Intrinsics(600.0, 620.0, 130.0, 124.5, 256, 256), (-2.0, 0.0, 0.001, -0.002), "plumb_bob"
+)
+CAMERA_YAML = """%YAML:1.0
+---
+image_width: 256
+image_height: 256
+camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 600., 0., 130., 0., 620., 124.5, 0., 0., 1. ]
+distortion_coefficients: !!opencv-matrix
+   rows: 4
+   cols: 1
+   dt: d
+   data: [ -2., 0., 1.0000000000000000e-03, -2.0000000000000000e-03 ]
+"""
+
+
+@pytest.fixture(scope="module")
+def camera_url(model_path, tmp_path_factory):
+    """The service started with ``--camera``: CAMERA's file."""
+    folder = tmp_path_factory.mktemp("camera")
+    (folder / "camera.yaml").write_text(CAMERA_YAML)
+    flags = [f"--max-pixels={MAX_PIXELS}", f"--camera={folder / 'camera.yaml'}"]
+    with running_service(model_path, folder / "serve.log", *flags) as address:
+        yield address
+
+
+def test_a_frame_without_intrinsics_is_undistorted_into_the_camera_of_the_file(url, camera_url):
+    """Served with --camera, a frame without intrinsics gets the very answer of the same frame
+    undistorted (``sdcnet.calibration``) and sent with the camera's intrinsics to a service
+    without: over both protocols."""
+    s = frame()
+    undistorter = Undistorter(CAMERA)
+    rows, cols = np.nonzero(s.sparse)
+    new_rows, new_cols, kept = undistorter.returns(rows, cols)
+    sparse = scatter_nearest(new_rows, new_cols, s.sparse[rows, cols][kept], s.sparse.shape)
+    gray = undistorter.image(s.gray)
+    assert (new_cols != cols[kept]).any() and not np.array_equal(gray, s.gray)  # the lens's work
+    K = CAMERA.intrinsics
+    intrinsics = {"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy}
+    undistorted = frame_files(png_bytes(gray), npy_bytes(sparse))
+    expected = httpx.post(f"{url}/complete", files=undistorted, data=intrinsics, timeout=60)
+
+    answer = httpx.post(f"{camera_url}/complete", files=frame_files(), timeout=60).json()
+    assert answer["intrinsics"] == expected.json()["intrinsics"] == pytest.approx(intrinsics)
+    assert answer["returns"] == np.count_nonzero(sparse)
+    for name in ("depth", "mask", "points"):
+        np.testing.assert_array_equal(decoded(answer[name]), decoded(expected.json()[name]))
+    with Client(camera_url) as client:  # the Open Inference Protocol
+        over_v2 = client.complete(s.gray, returns=returns_from_dense(s.sparse))
+    assert over_v2.meta["intrinsics"] == pytest.approx(intrinsics)
+    np.testing.assert_array_equal(over_v2.depth, decoded(answer["depth"]))
+    np.testing.assert_array_equal(over_v2.points, decoded(answer["points"]))
+
+
+def test_the_camera_is_listed_and_fits_frames_of_its_aspect_ratio_only(camera_url):
+    with httpx.Client(base_url=camera_url, timeout=60) as http:
+        meta = http.get("/model").json()
+        assert meta["camera"] == {
+            "source": "camera.yaml (OpenCV YAML)",
+            "model": "plumb_bob",
+            "intrinsics": CAMERA.intrinsics.as_dict(),
+            "distortion": [-2.0, 0.0, 0.001, -0.002],
+            "frame": ANSWER_FRAME,
+        }
+        assert meta["default_intrinsics"] == CAMERA.intrinsics.as_dict()
+
+        small = synthetic_frame(128, seed=1)  # the camera binned 2 x 2: its intrinsics scaled
+        files = {
+            "gray": ("g.png", png_bytes(small.gray)),
+            "sparse": ("s.npy", npy_bytes(small.sparse)),
+        }
+        K = CAMERA.at_size(128, 128).intrinsics
+        assert post(http, files).json()["intrinsics"] == pytest.approx(
+            {"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy}
+        )
+        s = frame()  # 256 x 128: another camera, which the request must describe
+        wide = frame_files(png_bytes(s.gray[64:192]), npy_bytes(s.sparse[64:192]))
+        error = assert_error_shape(post(http, wide), 422, "camera_mismatch")
+        assert error["message"] == (
+            "the frame is 256 x 128 pixels, not of the aspect ratio of the camera's 256 x 256 "
+            "(camera.yaml (OpenCV YAML)): send fx, fy, cx and cy with this frame, or serve with "
+            "its camera's file (sdc-serve --camera)"
+        )
+        given = {"fx": 900.0, "fy": 900.0, "cx": 127.5, "cy": 63.5}
+        assert post(http, wide, given).json()["intrinsics"] == given
+
+
 # -- the process --------------------------------------------------------------------------
 
 
@@ -519,6 +697,18 @@ def test_sdc_serve_refuses_a_missing_model_with_one_clear_line(tmp_path):
     )
     assert result.returncode == 2
     assert result.stderr.strip() == f"sdc-serve: model file not found: {tmp_path / 'none.onnx'}"
+
+
+def test_sdc_serve_refuses_a_missing_camera_file_with_one_clear_line(model_path, tmp_path):
+    """Loaded before the model: a camera file's problem (sdcnet.calibration's message) is
+    the one line, as a model's is."""
+    command = [sys.executable, "-m", "sdcnet.service", "--model", str(model_path)]
+    camera = tmp_path / "none.yaml"
+    result = subprocess.run(
+        [*command, "--camera", str(camera)], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip() == f"sdc-serve: camera file not found: {camera}"
 
 
 def test_the_service_imports_no_torch():

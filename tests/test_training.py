@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+from dataclasses import fields
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,9 @@ import torch
 
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.cli import main as train_main
+from sdcnet.training.cli import parser as train_parser
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet
+from sdcnet.training.train import TrainConfig, config_from_preset
 
 
 @pytest.fixture(scope="module")
@@ -206,6 +209,33 @@ def one_line(err: str) -> str:
     return lines[0]
 
 
+def test_fit_has_a_flag_of_each_train_config_field_of_its_type(capsys):
+    """``sdc-train fit``'s flags are made from ``TrainConfig``'s fields: each one's name,
+    type and choices; those not given are the preset's."""
+    argv = ["fit", "--data", "d", "--out", "o", "--lr", "5e-4", "--samples-per-epoch", "3"]
+    argv += ["--variant", "fsnet", "--warm-start", "w.pt"]
+    args = train_parser().parse_args(argv)
+    given = {"data": "d", "out": "o", "lr": 5e-4, "samples_per_epoch": 3, "variant": "fsnet"}
+    given["warm_start"] = "w.pt"
+    flags = {f.name for f in fields(TrainConfig)} - {"command"}
+    assert {name: getattr(args, name) for name in flags} == {
+        name: given.get(name) for name in flags
+    }
+    config = config_from_preset(args.preset, **{name: getattr(args, name) for name in flags})
+    assert (config.lr, config.samples_per_epoch, config.epochs) == (5e-4, 3, 16)  # cpu preset
+    for bad in (["--variant", "nope"], ["--epochs", "1.5"]):
+        with pytest.raises(SystemExit):
+            train_parser().parse_args([*argv, *bad])
+    with pytest.raises(SystemExit):  # --data is required: TrainConfig has no default for it
+        train_parser().parse_args(["fit", "--out", "o"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        train_parser().parse_args(["fit", "--help"])
+    shown = " ".join(capsys.readouterr().out.split())
+    assert "--fsnet-inputs {both,gray,sparse} what FSNet sees" in shown
+    assert "--data DATA dataset directory (sdc-data generate)" in shown
+
+
 def test_bad_arguments_give_clear_errors(tmp_path, capsys):
     assert train_main(["fit", "--data", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
     assert "not an sdcnet dataset" in one_line(capsys.readouterr().err)
@@ -314,3 +344,29 @@ def test_ship_zero_makes_an_ablation_copy(run, tmp_path, capsys):
     assert train_main(bad) == 2
     assert "no weights under that prefix" in capsys.readouterr().err
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_calibrate_scales_sigma_to_cover_68_percent_of_the_errors(
+    run, tiny_dataset, tmp_path, capsys
+):
+    out = tmp_path / "calibrated.pt"
+    args = ["calibrate", "--checkpoint", str(run / "best.pt"), "--data", str(tiny_dataset)]
+    assert train_main([*args, "--split", "train", "--limit", "4", "--out", str(out)]) == 0
+    assert "within 1 / 2 sigma" in capsys.readouterr().out
+    before, _ = load_checkpoint(run / "best.pt")
+    after, state = load_checkpoint(out)
+    report = state["sigma_calibration"]
+    assert report["within_1_after"] == pytest.approx(0.68, abs=0.01)
+    assert report["within_2_after"] >= report["within_1_after"]
+    factor = after.config.sigma_per_scale / before.config.sigma_per_scale
+    assert factor == pytest.approx(report["factor"])
+    gray, sparse = torch.rand(1, 1, 64, 64), torch.zeros(1, 1, 64, 64)
+    sparse[..., ::9, ::6] = 80.0
+    focal = torch.full((1, 1, 1, 1), 2000.0)
+    with torch.no_grad():
+        d0, p0, s0 = before(gray, sparse, focal)
+        d1, p1, s1 = after(gray, sparse, focal)
+    torch.testing.assert_close(d1, d0)  # only sigma changes, by the factor
+    torch.testing.assert_close(p1, p0)
+    torch.testing.assert_close(s1, factor * s0)
+    assert state["train_config"] == load_checkpoint(run / "best.pt")[1]["train_config"]

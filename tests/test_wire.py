@@ -15,6 +15,7 @@ import pytest
 import tritonclient.http as triton
 from tritonclient.utils import InferenceServerException
 
+from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Client
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
 from sdcnet.devtools.frames import png_bytes, synthetic_frame
@@ -55,15 +56,19 @@ def url(model_path, tmp_path_factory):
 @pytest.fixture(scope="module")
 def expected(model_path) -> dict[str, np.ndarray]:
     """The 256 x 256 test frame completed in process, as the service must answer it: the
-    pipeline on onnxruntime (same model, same single thread), the paper's camera scaled (a
-    256 px frame is run at 4x, the model's pixel scale)."""
+    pipeline on onnxruntime (same model, same single thread), the paper's camera scaled."""
     s = generated(256)
     model = OnnxModel(model_path, provider="cpu", threads=1)
-    result = complete(model.run, s.gray, s.sparse, model.stride, zoom=4.0)
     K = model.info.intrinsics.scaled(256, 256)
+    info = model.info
+    result = complete(model.run, s.gray, s.sparse, K.fx, info.stride, info.work_pixels)
     points = back_project(result.depth, result.mask, K)
-    assert result.mask.any()
-    return {"depth": result.depth, "mask": result.mask.astype(np.uint8), "points": points}
+    assert result.mask.any() and np.isfinite(result.sigma).all() and result.sigma.any()
+    mask = result.mask.astype(np.uint8)
+    return {"depth": result.depth, "mask": mask, "points": points, "sigma": result.sigma}
+
+
+OUTPUTS = ("depth", "mask", "points", "sigma")
 
 
 def triton_infer(url: str, inputs: dict[str, np.ndarray], binary: bool, **parameters):
@@ -76,18 +81,15 @@ def triton_infer(url: str, inputs: dict[str, np.ndarray], binary: bool, **parame
             tensor = triton.InferInput(name, list(array.shape), datatypes[array.dtype])
             tensor.set_data_from_numpy(array, binary_data=binary)
             tensors.append(tensor)
-        outputs = [
-            triton.InferRequestedOutput(name, binary_data=binary)
-            for name in ("depth", "mask", "points")
-        ]
+        outputs = [triton.InferRequestedOutput(name, binary_data=binary) for name in OUTPUTS]
         result = client.infer("sdcnet", tensors, outputs=outputs, parameters=parameters or None)
-        return {name: result.as_numpy(name) for name in ("depth", "mask", "points")}, result
+        return {name: result.as_numpy(name) for name in OUTPUTS}, result
     finally:
         client.close()
 
 
 def assert_same(answer: dict[str, np.ndarray], expected: dict[str, np.ndarray]) -> None:
-    for name in ("depth", "mask", "points"):
+    for name in answer:
         assert answer[name].dtype == expected[name].dtype, name
         np.testing.assert_array_equal(answer[name], expected[name], err_msg=name)
 
@@ -114,8 +116,9 @@ def test_tritonclient_reads_the_metadata_and_probes(url):
         assert client.is_server_live() and client.is_server_ready()
         assert client.is_model_ready("sdcnet")
         assert "binary_tensor_data" in client.get_server_metadata()["extensions"]
-        inputs = {t["name"]: t for t in client.get_model_metadata("sdcnet")["inputs"]}
-        assert set(inputs) == {"gray", "sparse", "returns"}
+        metadata = client.get_model_metadata("sdcnet")
+        assert {t["name"] for t in metadata["inputs"]} == {"gray", "sparse", "returns"}
+        assert [t["name"] for t in metadata["outputs"]] == list(OUTPUTS)
     finally:
         client.close()
 
@@ -132,6 +135,21 @@ def test_request_parameters_reach_the_pipeline(url):
     valid = np.count_nonzero(given["mask"].astype(bool) & (given["depth"] > 0))
     assert parameters["outliers_removed"] == valid - len(given["points"]) > 0
     assert not np.array_equal(given["points"][:10], plain["points"][:10])
+
+
+def test_max_sigma_as_a_request_parameter_leaves_exactly_the_uncertain_points_out(url):
+    s = generated(256)
+    inputs = {"gray": s.gray, "returns": returns_from_dense(s.sparse)}
+    max_sigma = 0.075  # metres: the tiny model's sigma is a tenth of the gray image
+    answer, result = triton_infer(url, inputs, True, max_sigma=max_sigma)
+    parameters = result.get_response()["parameters"]
+    depth, sigma = answer["depth"], answer["sigma"]
+    valid = answer["mask"].astype(bool) & (depth > 0)
+    K = Intrinsics(*(parameters[k] for k in ("fx", "fy", "cx", "cy")), 256, 256)
+    trusted = valid & (sigma <= max_sigma)
+    np.testing.assert_array_equal(answer["points"], back_project(depth, trusted, K))
+    assert parameters["uncertain_removed"] == np.count_nonzero(valid & (sigma > max_sigma)) > 100
+    assert np.count_nonzero(trusted) > 100
 
 
 def test_the_service_lets_idle_onnxruntime_threads_sleep(model_path):
@@ -164,7 +182,7 @@ def test_returns_and_the_dense_map_give_identical_answers_on_complete(url, expec
         body = response.json()
         arrays = {
             k: np.load(io.BytesIO(base64.b64decode(body[k]["npy_base64"])), allow_pickle=False)
-            for k in ("depth", "mask", "points")
+            for k in OUTPUTS
         }
         assert_same(arrays, expected)
         assert body["returns"] == len(returns)
@@ -180,23 +198,25 @@ def test_the_python_client_rebuilds_the_compact_answer_exactly(url, expected, tm
             client.complete(png_bytes(s.gray), tmp_path / "returns.csv"),
         ]
         half = client.complete(s.gray, s.sparse, float16_depth=True)
+    for result in [*results, half]:
+        assert_same({"points": result.points, "sigma": result.sigma}, expected)
     for result in results:
-        assert_same(
-            {"depth": result.depth, "mask": result.mask.astype(np.uint8), "points": result.points},
-            expected,
-        )
+        mask = result.mask.astype(np.uint8)
+        assert_same({"depth": result.depth, "mask": mask}, expected)
         assert result.mask.dtype == bool and result.points.flags.writeable
         assert result.meta["returns"] == np.count_nonzero(s.sparse)
         assert set(result.timings_ms) == {"decode_ms", "queue_ms", "inference_ms", "encode_ms"}
         assert set(result.meta["intrinsics"]) == {"fx", "fy", "cx", "cy"}
     np.testing.assert_array_equal(half.depth == 0, expected["depth"] == 0)
     assert np.abs(half.depth - expected["depth"]).max() <= 0.008  # a spacecraft < 32 m deep
-    np.testing.assert_array_equal(half.points, expected["points"])  # made from exact depth
+
+
+REGION = ("region_y0", "region_x0", "region_height", "region_width")
 
 
 def test_compact_layouts_are_what_they_say(url, expected):
     """Region, bits and fp16 asked for by hand: the answer's parameters are enough to rebuild
-    the full frames (the client's own code is not used here)."""
+    the full frames (the client's own code is not used here); sigma's window is the depth's."""
     s = generated(256)
     returns = returns_from_dense(s.sparse)
     inputs = [
@@ -210,13 +230,14 @@ def test_compact_layouts_are_what_they_say(url, expected):
         "outputs": [
             {"name": "mask", "parameters": {"binary_data": True, "region": True, "bits": True}},
             {"name": "depth", "parameters": {"binary_data": True, "region": True, "fp16": True}},
+            {"name": "sigma", "parameters": {"binary_data": True, "region": True}},
         ],
     }
     response = post_v2(url, header, s.gray.tobytes() + returns.tobytes())
     assert response.status_code == 200, response.text
     length = int(response.headers[HEADER_LENGTH])
     document = json.loads(response.content[:length])
-    mask_out, depth_out = document["outputs"]
+    mask_out, depth_out, sigma_out = document["outputs"]
     p = mask_out["parameters"]
     assert mask_out["datatype"] == "UINT8" and depth_out["datatype"] == "FP16"
     window = (p["region_height"], p["region_width"])
@@ -227,13 +248,21 @@ def test_compact_layouts_are_what_they_say(url, expected):
     np.testing.assert_array_equal(mask, expected["mask"].astype(bool))
     q = depth_out["parameters"]
     assert depth_out["shape"] == list(window) and q["region_y0"] == p["region_y0"]
-    residuals = np.frombuffer(data[p["binary_data_size"] :], "<f2").reshape(window)
+    at = p["binary_data_size"] + q["binary_data_size"]
+    residuals = np.frombuffer(data[p["binary_data_size"] : at], "<f2").reshape(window)
     depth = paste(
         depth_from_fp16(residuals, q["depth_offset"]), q["region_y0"], q["region_x0"], (256, 256)
     )
     np.testing.assert_array_equal(depth == 0, expected["depth"] == 0)
     assert np.abs(depth - expected["depth"]).max() <= 0.008
-    assert len(response.content) < 256 * 256 * 2  # less than the full frame in FP16 alone
+    r = sigma_out["parameters"]
+    assert sigma_out["datatype"] == "FP32" and sigma_out["shape"] == list(window)
+    assert [r[k] for k in REGION] == [q[k] for k in REGION]  # the depth's window
+    sigma = np.frombuffer(data[at:], "<f4").reshape(window)
+    assert len(data[at:]) == r["binary_data_size"] == sigma.nbytes
+    sigma = paste(sigma, r["region_y0"], r["region_x0"], (256, 256))
+    np.testing.assert_array_equal(sigma, expected["sigma"])
+    assert len(response.content) < 256 * 256 * 6  # less than the full frame in FP16 and FP32
 
 
 # -- malformed v2 requests ----------------------------------------------------------------
@@ -326,6 +355,9 @@ def malformed(case: str) -> tuple[dict | bytes, bytes, dict]:
         "unknown_parameter": ({**header, "parameters": {"fx": 100.0, "zoom": 2}}, binary, {}),
         "string_parameter": ({**header, "parameters": {"fx": "100"}}, binary, {}),
         "negative_fx": ({**header, "parameters": {"fx": -1.0}}, binary, {}),
+        "zero_max_sigma": ({**header, "parameters": {"max_sigma": 0.0}}, binary, {}),
+        "nan_max_sigma": ({**header, "parameters": {"max_sigma": float("nan")}}, binary, {}),
+        "string_max_sigma": ({**header, "parameters": {"max_sigma": "0.1"}}, binary, {}),
         "unknown_output": ({**header, "outputs": [{"name": "foreground"}]}, binary, {}),
         "output_twice": ({**header, "outputs": [{"name": "mask"}, {"name": "mask"}]}, binary, {}),
         "no_outputs": ({**header, "outputs": []}, binary, {}),
@@ -440,7 +472,10 @@ MALFORMED = {
     "empty_body": (400, "invalid_request", "not valid JSON"),
     "unknown_parameter": (400, "invalid_request", "parameters.zoom: Extra inputs"),
     "string_parameter": (400, "invalid_request", "parameters.fx: Input should be a valid number"),
-    "negative_fx": (400, "invalid_request", "parameters.fx: Input should be greater than"),
+    "negative_fx": (422, "invalid_intrinsics", "focal lengths must be positive pixels"),
+    "zero_max_sigma": (422, "invalid_max_sigma", "a positive finite number of metres, got 0.0"),
+    "nan_max_sigma": (422, "invalid_max_sigma", "a positive finite number of metres, got nan"),
+    "string_max_sigma": (400, "invalid_request", "parameters.max_sigma: Input should be a valid"),
     "unknown_output": (400, "invalid_request", "'depth', 'mask', 'points'"),
     "output_twice": (400, "invalid_request", "output mask is asked for more than once"),
     "no_outputs": (400, "invalid_request", "outputs is empty"),
@@ -450,7 +485,7 @@ MALFORMED = {
     "no_data": (400, "invalid_request", "input returns has no values"),
     "json_data_wrong_count": (400, "invalid_request", "shape [256, 3] needs 768"),
     "json_gray_out_of_range": (400, "wrong_dtype", "UINT8 values lie in 0..255, got 300..300"),
-    "json_data_strings": (400, "wrong_dtype", "must hold FP32 numbers, got strings"),
+    "json_data_strings": (400, "wrong_dtype", "data must hold numbers, got strings"),
     "nan_return": (422, "invalid_depth", "returns must be finite numbers; return 0"),
     "return_outside_the_frame": (422, "invalid_returns", "outside the 64 x 64 image"),
     "no_return": (422, "no_returns", "no LIDAR return"),

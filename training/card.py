@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import json
 
-from sdcnet.metrics import depth_table, markdown_table
+import numpy as np
+
+from sdcnet.metrics import depth_table, markdown_table, uncertainty_table
 from sdcnet.training.model.sdcnet import SDCNet
+from sdcnet.training.robustness import table_of
 
 
 def lineage(state: dict) -> list[dict]:
@@ -20,7 +23,11 @@ def lineage(state: dict) -> list[dict]:
     runs = [state]
     while True:
         first = runs[0]
-        parent = first.get("parent") or first.get("segmentation_parent")
+        parent = (
+            first.get("parent")
+            or first.get("segmentation_parent")
+            or first.get("warm_start_parent")
+        )
         if parent is None:
             return runs
         runs.insert(0, parent)
@@ -50,10 +57,12 @@ def _recipe(configs: list[dict]) -> str:
         "weight_decay",
         "gradient_loss",
         "iou_loss",
+        "sigma_loss",
         "samples_per_epoch",
         "train_samples",
         "val_samples",
         "seed",
+        "warm_start",
     )
     header = "| recipe | " + " | ".join(f"run {i + 1}" for i in range(len(configs))) + " |"
     rule = "|---|" + "---|" * len(configs)
@@ -62,7 +71,12 @@ def _recipe(configs: list[dict]) -> str:
 
 
 def model_card(
-    state: dict, model: SDCNet, reports: list[dict], version: str, notes: str = ""
+    state: dict,
+    model: SDCNet,
+    reports: list[dict],
+    version: str,
+    notes: str = "",
+    robustness: dict | None = None,
 ) -> str:
     """Markdown model card of a trained checkpoint and its evaluation reports."""
     data, runs = state.get("dataset", {}), lineage(state)
@@ -72,13 +86,15 @@ def model_card(
     lines = [
         f"# Model card: {version}",
         "",
-        "SDCNet (pre-fill + FSNet + FDCNet) for spacecraft depth completion from a",
-        "1024 x 1024 gray image (f = 50 mm, 6.449 mm sensor) and a co-located LIDAR",
-        "(0.09 x 0.13 deg beams) at 50-250 m.",
+        "SDCNet (pre-fills + FSNet + FDCNet) for spacecraft depth completion from a gray image",
+        "and the LIDAR returns of any camera and LIDAR at any range, trained on the world",
+        f"`{data.get('world', 'paper')}` (`docs/dataset.md`).",
         "",
         "- Inputs: `gray` float32 (B, 1, H, W) in [0, 1]; `sparse` float32 (B, 1, H, W), LIDAR",
-        "  camera-frame Z in metres, 0 = no return. Outputs: `depth` (metres), `foreground`",
-        "  (probability). The service crops to the LIDAR-bounded region first (`sdcnet.pipeline`).",
+        "  camera-frame Z in metres, 0 = no return; `focal_px` float32 (B, 1, 1, 1), the focal",
+        "  length in the inputs' pixels. Outputs: `depth` (metres), `foreground` (probability),",
+        "  `sigma` (the depth's uncertainty, metres). The pipeline (`sdcnet.pipeline`) crops to",
+        "  the LIDAR-bounded region and resamples it to the model's fixed working-pixel budget.",
         f"- Architecture: {json.dumps(model.config.to_dict())}; {params:,} parameters "
         f"({fs:,} in FSNet).",
         "",
@@ -88,7 +104,8 @@ def model_card(
         f"{data.get('models')} models x {data.get('views')} views; models per split "
         f"{data.get('split_models')}). Test models are never seen in training.",
         f"- Training: {len(runs)} run(s), each starting from the weights the one before kept "
-        f"(`--init-weights`, or its FSNet with `--init-segmentation`), {minutes:.0f} min in all:",
+        f"(`--init-weights`, its FSNet with `--init-segmentation`, or every weight that fits "
+        f"a new design with `--warm-start`), {minutes:.0f} min in all:",
         *(f"  {i + 1}. {_run_line(run)}." for i, run in enumerate(runs)),
         "- Optimiser: Adam, cosine decay per stage; stage 1 BCE on the foreground (eq. 6), stage 2",
         "  L1 on predicted ∩ true foreground (eq. 7) with FSNet frozen. Kept: the best epoch by",
@@ -116,9 +133,33 @@ def model_card(
                 depth_table(report["results"]),
                 "",
             ]
-        undefined = {k: v for k, v in report.get("undefined", {}).items() if any(v.values())}
+        if any(not np.isnan(m.get("sigma_within_1", np.nan)) for m in report["results"].values()):
+            lines += [
+                "The depth's uncertainty on predicted ∩ true foreground (`sigma`):",
+                "",
+                uncertainty_table(report["results"]),
+                "",
+            ]
+        undefined = {
+            k: {name: n for name, n in v.items() if n and not name.startswith("sigma_")}
+            for k, v in report.get("undefined", {}).items()
+        }
+        undefined = {k: v for k, v in undefined.items() if v}
         if undefined:
             lines += [f"Images left out of a mean for an empty set: {json.dumps(undefined)}", ""]
+    if robustness:
+        lines += [
+            "## Robustness suite: every condition, model against the classical fill",
+            "",
+            "`sdc-train robustness`: frames of spacecraft never trained on (the test split's "
+            "models and the real meshes) per condition (`docs/dataset.md`); IOU with the "
+            "fill's in brackets, depth MAE on the pixels shared with the fill (the fill's in "
+            "brackets) overall and by distance to the nearest return, mean normal error, false "
+            "specks per frame, in-process milliseconds per frame on 2 threads.",
+            "",
+            table_of(robustness),
+            "",
+        ]
     if notes:
         lines += [notes.strip(), ""]
     return "\n".join(lines)

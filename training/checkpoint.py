@@ -25,9 +25,12 @@ def save_checkpoint(path: Path, model: SDCNet, **extra) -> None:
     tmp.replace(path)
 
 
-def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict:
+def read_checkpoint(
+    path: str | Path, map_location: str | torch.device = "cpu", check_config: bool = True
+) -> dict:
     """The checkpoint dict (weights never unpickled as code: ``weights_only``), with its
-    ``model`` weights and a ``model_config`` that parses. Clear errors for bad files."""
+    ``model`` weights and (unless ``check_config`` is off: a checkpoint of an earlier design to
+    warm-start from) a ``model_config`` that parses. Clear errors for bad files."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
@@ -50,6 +53,8 @@ def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         ) from exc
     if not isinstance(state, dict) or "model" not in state or "model_config" not in state:
         raise ValueError(f"{path} is not an sdcnet checkpoint")
+    if not check_config:
+        return state
     try:
         ModelConfig.from_dict(state["model_config"])
     except (TypeError, ValueError, KeyError, AttributeError) as exc:
@@ -64,6 +69,33 @@ def load_weights(model: SDCNet, weights: dict, path: str | Path) -> None:
         model.load_state_dict(weights)
     except RuntimeError as exc:
         raise ValueError(f"the weights in {path} do not fit this architecture: {exc}") from exc
+
+
+def transplant_weights(model: SDCNet, weights: dict) -> dict[str, list[str]]:
+    """Copy into ``model`` the ``weights`` of another architecture: each tensor whose name and
+    shape match, and of a convolution that gained input channels, the channels both have (the
+    new ones start at zero, so the layer first computes what it did). For a new design
+    warm-started from the shipped model. Returns the names copied, copied in part, left."""
+    own = model.state_dict()
+    report: dict[str, list[str]] = {"copied": [], "partial": [], "left": []}
+    for name, tensor in own.items():
+        theirs = weights.get(name)
+        if theirs is not None and theirs.shape == tensor.shape:
+            tensor.copy_(theirs)
+            report["copied"].append(name)
+        elif (
+            theirs is not None
+            and theirs.dim() == 4
+            and theirs.shape[0] == tensor.shape[0]
+            and theirs.shape[2:] == tensor.shape[2:]
+            and theirs.shape[1] < tensor.shape[1]
+        ):
+            tensor.zero_()
+            tensor[:, : theirs.shape[1]] = theirs
+            report["partial"].append(name)
+        else:
+            report["left"].append(name)
+    return report
 
 
 def load_checkpoint(

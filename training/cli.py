@@ -6,8 +6,9 @@ import argparse
 import hashlib
 import json
 import sys
-from dataclasses import fields
+from dataclasses import MISSING, Field, fields
 from pathlib import Path
+from typing import get_args, get_type_hints
 
 import cv2
 
@@ -17,25 +18,50 @@ from sdcnet.meshes import read_mesh_folder
 from sdcnet.metrics import depth_table, markdown_table
 from sdcnet.training.card import model_card
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
-from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
+from sdcnet.training.data.conditions import ROBUSTNESS
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, generate, make_sample
 from sdcnet.training.evaluate import (
-    ClassicalFill,
+    Method,
+    StoredAnswers,
+    classical,
     evaluate_records,
     mask_metrics_only,
+    network,
     torch_model_fn,
     torch_segmentation_fn,
 )
-from sdcnet.training.model.sdcnet import VARIANTS
 from sdcnet.training.real import evaluate_per_model, gallery
 from sdcnet.training.train import PRESETS, TrainConfig, Trainer, config_from_preset
 from sdcnet.visualize import montage
 
 
+def flag_fields() -> list[Field]:
+    """The fields of ``TrainConfig`` that are flags of ``sdc-train fit``."""
+    return [f for f in fields(TrainConfig) if f.metadata.get("flag", True)]
+
+
+def add_config_flags(parser: argparse.ArgumentParser) -> None:
+    """One flag per field of ``TrainConfig`` (``--batch-size`` for ``batch_size``): its type
+    (``int | None`` gives int), its help and choices from the field's metadata, required when
+    the field has no default. A flag not given is None, so that the preset and ``--config``
+    fill it."""
+    hints = get_type_hints(TrainConfig)
+    for f in flag_fields():
+        kind = next(k for k in (*get_args(hints[f.name]), hints[f.name]) if k is not type(None))
+        parser.add_argument(
+            "--" + f.name.replace("_", "-"),
+            dest=f.name,
+            type=kind,
+            required=f.default is MISSING and f.default_factory is MISSING,
+            **{k: v for k, v in f.metadata.items() if k in ("help", "choices")},
+        )
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     overrides = json.loads(Path(args.config).read_text()) if args.config else {}
-    for f in fields(TrainConfig):
-        value = getattr(args, f.name, None)
-        if value is not None and f.name != "command":
+    for f in flag_fields():
+        value = getattr(args, f.name)
+        if value is not None:
             overrides[f.name] = value
     config = config_from_preset(args.preset, **overrides)
     best = Trainer(config).fit(resume=not args.restart)
@@ -43,8 +69,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _methods(args: argparse.Namespace) -> dict[str, tuple]:
-    """Name -> (model callable, stride) for --checkpoint, --onnx and --floor."""
+def _methods(args: argparse.Namespace) -> dict[str, Method]:
+    """Name -> method for --checkpoint, --onnx and --floor."""
     names = getattr(args, "names", None) or []
     if names and len(names) != len(args.checkpoint):
         raise ValueError(f"--names gives {len(names)} names for {len(args.checkpoint)} checkpoints")
@@ -56,18 +82,44 @@ def _methods(args: argparse.Namespace) -> dict[str, tuple]:
         if name in methods:
             raise ValueError(f"two checkpoints are both called {name!r}: give --names")
         fn = torch_segmentation_fn(model) if segmentation_only else torch_model_fn(model)
-        methods[name] = (fn, model.config.stride)
+        methods[name] = network(fn, model.config.stride)
     if args.onnx:
         from sdcnet.runtime import OnnxModel
 
         onnx_model = OnnxModel(args.onnx)
-        methods[f"onnx:{Path(args.onnx).name}"] = (onnx_model.run, onnx_model.stride)
+        methods[f"onnx:{Path(args.onnx).name}"] = network(
+            onnx_model.run, onnx_model.stride, onnx_model.info.work_pixels
+        )
+    for entry in getattr(args, "answers", None) or []:
+        name, sep, folder = entry.partition("=")
+        if not sep or not name or not folder:
+            raise ValueError(f"--answers takes NAME=FOLDER, got {entry!r}")
+        methods[name] = StoredAnswers(folder)
     if args.floor:
-        fill = ClassicalFill()
-        methods["classical fill"] = (torch_model_fn(fill), fill.stride)
+        methods["classical fill"] = classical
     if not methods:
         raise ValueError("nothing to evaluate: give --checkpoint, --onnx or --floor")
     return methods
+
+
+def cmd_robustness(args: argparse.Namespace) -> int:
+    """Every condition of the robustness suite: the methods against the classical fill."""
+    from sdcnet.training.robustness import run_suite
+
+    table = run_suite(
+        _methods(args),
+        args.conditions,
+        Path(args.data),
+        read_mesh_folder(args.meshes) if args.meshes else (),
+        Path(args.out),
+        args.views,
+        args.seed,
+        args.workers,
+        args.gallery,
+        args.models,
+    )
+    print(table)
+    return 0
 
 
 def cmd_real(args: argparse.Namespace) -> int:
@@ -88,8 +140,7 @@ def cmd_real(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     per_method = {
-        name: evaluate_per_model(fn, store, records, stride)
-        for name, (fn, stride) in methods.items()
+        name: evaluate_per_model(method, store, records) for name, method in methods.items()
     }
     overall = {name: tables["all"].mean() for name, tables in per_method.items()}
     lines = [
@@ -121,13 +172,12 @@ def cmd_real(args: argparse.Namespace) -> int:
             indent=1,
         )
     )
-    fn, stride = methods[first]
     others = {
         name: method
         for name, method in methods.items()
         if name != first and not name.startswith("onnx:")  # the same model as the first
     }
-    print(gallery(fn, store, records, stride, out / "gallery.png", others))
+    print(gallery(methods[first], store, records, out / "gallery.png", others))
     print("\n".join(lines))
     return 0
 
@@ -139,8 +189,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise ValueError(f"split {args.split!r} is empty in {args.data}")
     methods = _methods(args)
     results, counts, undefined = {}, {}, {}
-    for name, (fn, stride) in methods.items():
-        table = evaluate_records(fn, store, records, stride=stride, desc=name)
+    for name, method in methods.items():
+        table = evaluate_records(
+            method, store, records, desc=name, mask_only=args.segmentation_only
+        )
         results[name], counts[name], undefined[name] = table.mean(), len(table), table.undefined()
         if args.segmentation_only:
             results[name] = mask_metrics_only(results[name])
@@ -195,39 +247,9 @@ def parser() -> argparse.ArgumentParser:
     add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
     f = sub.add_parser("fit", help="two-stage training; resumes from OUT/last.pt")
-    f.add_argument("--data", required=True, help="dataset directory (sdc-data generate)")
-    f.add_argument("--out", required=True, help="run directory: checkpoints, log.csv, plots")
     f.add_argument("--preset", default="cpu", choices=sorted(PRESETS), help="recipe (default: cpu)")
     f.add_argument("--config", help="JSON file of TrainConfig fields (flags override it)")
-    f.add_argument("--variant", choices=sorted(VARIANTS))
-    f.add_argument("--fsnet-inputs", dest="fsnet_inputs", choices=["both", "gray", "sparse"])
-    for name, kind in (
-        ("fsnet_epochs", int),
-        ("epochs", int),
-        ("batch_size", int),
-        ("tile", int),
-        ("lr", float),
-        ("weight_decay", float),
-        ("gradient_loss", float),
-        ("iou_loss", float),
-        ("samples_per_epoch", int),
-        ("train_samples", int),
-        ("val_samples", int),
-        ("workers", int),
-        ("seed", int),
-    ):
-        f.add_argument("--" + name.replace("_", "-"), dest=name, type=kind)
-    f.add_argument(
-        "--init-segmentation",
-        dest="init_segmentation",
-        help="checkpoint whose trained FSNet to reuse: skips stage 1",
-    )
-    f.add_argument(
-        "--init-weights",
-        dest="init_weights",
-        help="fine-tune: start from this checkpoint's weights (same variant), e.g. the shipped "
-        "model on your own spacecraft; --epochs 0 trains the segmentation alone",
-    )
+    add_config_flags(f)
     f.add_argument("--restart", action="store_true", help="ignore OUT/last.pt")
     f.set_defaults(func=cmd_fit)
 
@@ -240,6 +262,13 @@ def parser() -> argparse.ArgumentParser:
         help="run only the foreground path of the checkpoints: IOU and IOI (stage-1-only runs)",
     )
     e.add_argument("--onnx", help="also evaluate an exported ONNX model (onnxruntime)")
+    e.add_argument(
+        "--answers",
+        nargs="*",
+        default=[],
+        metavar="NAME=FOLDER",
+        help="answers made elsewhere, e.g. the previous model (benchmarks/previous_model.py)",
+    )
     e.add_argument("--data", required=True)
     e.add_argument("--split", default="test")
     e.add_argument("--floor", action="store_true", help="also the classical morphological fill")
@@ -257,6 +286,13 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--checkpoint", nargs="*", default=[], help="first one draws the gallery")
     r.add_argument("--names", nargs="*", help="table labels of the checkpoints, in order")
     r.add_argument("--onnx", help="also the exported ONNX model")
+    r.add_argument(
+        "--answers",
+        nargs="*",
+        default=[],
+        metavar="NAME=FOLDER",
+        help="answers made elsewhere, e.g. the previous model (benchmarks/previous_model.py)",
+    )
     r.add_argument("--floor", action="store_true", help="also the classical morphological fill")
     r.add_argument(
         "--meshes", default="../shared/real-meshes", help="mesh folder with manifest.json"
@@ -267,6 +303,34 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", type=int, default=2)
     r.add_argument("--out", default="docs/real", help="markdown table, JSON and gallery.png")
     r.set_defaults(func=cmd_real)
+
+    o = sub.add_parser(
+        "robustness",
+        help="model vs classical fill per condition (cameras, LIDARs, ranges, skies) on "
+        "spacecraft never trained on: table, latency and galleries",
+    )
+    o.add_argument("--checkpoint", nargs="*", default=[], help="first one draws the galleries")
+    o.add_argument("--names", nargs="*", help="table labels of the checkpoints, in order")
+    o.add_argument("--onnx", help="also the exported ONNX model (onnxruntime, as served)")
+    o.add_argument(
+        "--answers",
+        nargs="*",
+        default=[],
+        metavar="NAME=FOLDER",
+        help="answers made elsewhere, e.g. the previous model (benchmarks/previous_model.py)",
+    )
+    o.add_argument("--conditions", nargs="*", default=list(ROBUSTNESS), choices=list(ROBUSTNESS))
+    o.add_argument(
+        "--meshes", default="../shared/real-meshes", help="real meshes (manifest.json); '' none"
+    )
+    o.add_argument("--data", default="data/robustness", help="where the frames go (made once)")
+    o.add_argument("--views", type=int, default=3, help="frames per spacecraft and condition")
+    o.add_argument("--seed", type=int, default=0, help="the reference dataset's (its test split)")
+    o.add_argument("--models", type=int, default=126, help="the reference dataset's model count")
+    o.add_argument("--workers", type=int, default=2)
+    o.add_argument("--gallery", type=int, default=4, help="frames per condition's picture")
+    o.add_argument("--out", default="docs/robustness", help="robustness.md, .json, galleries")
+    o.set_defaults(func=cmd_robustness, floor=False)
 
     q = sub.add_parser(
         "pose",
@@ -280,10 +344,26 @@ def parser() -> argparse.ArgumentParser:
     q.add_argument("--split", default="test")
     q.add_argument("--limit", type=int, default=18, help="models of the split, evenly spread")
     q.add_argument("--views", type=int, default=4, help="single frames per model")
-    q.add_argument("--seed", type=int, default=0, help="of the real meshes' frames")
+    q.add_argument("--seed", type=int, default=0, help="of the real meshes' frames and inits")
+    q.add_argument(
+        "--clouds",
+        nargs="*",
+        choices=["completed", "classical fill"],
+        default=["completed", "classical fill"],
+        help="the clouds registered beside the raw returns",
+    )
+    q.add_argument(
+        "--no-perturbed",
+        dest="perturbed",
+        action="store_false",
+        help="leave out the single frames tracked from perturbed true poses",
+    )
     q.add_argument("--sequences", nargs="*", default=[], help="folders made by `sdc-data sequence`")
     q.add_argument(
-        "--gallery", type=int, default=5, help="worst real frames in failures*.png, per cloud"
+        "--gallery",
+        type=int,
+        default=5,
+        help="worst real frames in failures*.png, per cloud (0: no pictures)",
     )
     q.add_argument(
         "--redraw", action="store_true", help="only the pictures, from --out's pose_eval.json"
@@ -306,11 +386,22 @@ def parser() -> argparse.ArgumentParser:
     )
     s.set_defaults(func=cmd_ship)
 
+    k = sub.add_parser(
+        "calibrate", help="scale the depth's sigma to cover 68 %% of the errors on a split"
+    )
+    k.add_argument("--checkpoint", required=True)
+    k.add_argument("--data", required=True, help="a dataset whose split was not trained on")
+    k.add_argument("--split", default="val")
+    k.add_argument("--limit", type=int, default=90, help="frames, evenly spread")
+    k.add_argument("--out", required=True, help="the calibrated checkpoint")
+    k.set_defaults(func=cmd_calibrate)
+
     c = sub.add_parser("card", help="write the model card from a checkpoint and evaluation reports")
     c.add_argument("--checkpoint", required=True)
     c.add_argument("--report", nargs="*", default=[], help="JSON files of `evaluate --out`")
     c.add_argument("--onnx", help="the exported model the card describes (names its version)")
     c.add_argument("--notes", help="markdown appended as is (limitations, observations)")
+    c.add_argument("--robustness", help="robustness.json of `sdc-train robustness`")
     c.add_argument("--out", required=True)
     c.set_defaults(func=cmd_card)
     return p
@@ -323,15 +414,17 @@ def cmd_pose(args: argparse.Namespace) -> int:
     from sdcnet.targets import load_target
     from sdcnet.training import pose_eval
 
-    onnx = OnnxModel(args.onnx, threads=args.threads)
-    fill = ClassicalFill()
-    methods = {
-        "completed": (onnx.run, onnx.stride),
-        "classical fill": (torch_model_fn(fill), fill.stride),
-    }
+    methods = {}
+    if "completed" in args.clouds:
+        onnx = OnnxModel(args.onnx, threads=args.threads)
+        methods["completed"] = network(onnx.run, onnx.stride, onnx.info.work_pixels)
+    if "classical fill" in args.clouds:
+        methods["classical fill"] = classical
     entries = read_mesh_folder(args.meshes)
     real_config = GenerateConfig(models=0, views=args.views, seed=args.seed, meshes=entries)
-    real = {k: (build_model(real_config, k), load_target(entry)) for k, entry in enumerate(entries)}
+    real = {
+        k: (build_spacecraft(real_config, k), load_target(entry)) for k, entry in enumerate(entries)
+    }
     stores = {Path(path).name: SampleStore(path) for path in args.sequences}
     out = Path(args.out)
     if args.redraw:
@@ -364,9 +457,12 @@ def cmd_pose(args: argparse.Namespace) -> int:
         sample = make_sample(real_config, model, model_id, view, "real")
         return target, pose_eval.with_pose(sample, model)
 
-    for cloud, name in (("completed", "failures.png"), (pose_eval.RAW, "failures_raw.png")):
+    if not args.gallery or not methods:
+        return 0
+    first = next(iter(methods))  # its depth is drawn beside the returns
+    for cloud, name in ((first, "failures.png"), (pose_eval.RAW, "failures_raw.png")):
         picks = [(r, *load(r)) for r in pose_eval.pick_failures(scratch, cloud, args.gallery)]
-        rows = pose_eval.gallery_rows(picks, onnx.run, onnx.stride, cloud)
+        rows = pose_eval.gallery_rows(picks, methods[first], cloud)
         cv2.imwrite(str(out / name), montage(rows, tile=256))
         print(out / name)
     return 0
@@ -381,9 +477,11 @@ def _pose_results(args, methods, real_config, real, stores) -> dict:
     test_config, procedural = pose_eval.procedural_models(args.dataset, sorted(ids))
     single_ids = pose_eval.split_ids(args.dataset, args.split, args.limit)
     targets = {t.name: t for _, t in [*real.values(), *procedural.values()]}
-    real_frames = pose_eval.single_frames(real_config, real, args.views, "real")
-    test_frames = pose_eval.single_frames(
-        test_config, {m: procedural[m] for m in single_ids}, args.views, args.split
+    real_frames = list(pose_eval.single_frames(real_config, real, args.views, "real"))
+    test_frames = list(
+        pose_eval.single_frames(
+            test_config, {m: procedural[m] for m in single_ids}, args.views, args.split
+        )
     )
     results = {
         f"Real spacecraft, single frames from scratch ({args.views} views each)": (
@@ -392,6 +490,14 @@ def _pose_results(args, methods, real_config, real, stores) -> dict:
         f"Test split ({len(single_ids)} models), single frames from scratch "
         f"({args.views} views each)": pose_eval.evaluate_frames(test_frames, methods),
     }
+    if args.perturbed:
+        results[f"Real spacecraft, tracked from perturbed true poses ({args.views} views each)"] = (
+            pose_eval.evaluate_perturbed(real_frames, methods, args.seed)
+        )
+        results[
+            f"Test split ({len(single_ids)} models), tracked from perturbed true poses "
+            f"({args.views} views each)"
+        ] = pose_eval.evaluate_perturbed(test_frames, methods, args.seed)
     for name, store in stores.items():
         count = len({r["model_name"] for r in store.records})
         results[f"Sequences {name} ({count} spacecraft), tracked at 10 Hz"] = (
@@ -421,6 +527,34 @@ def cmd_ship(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """Set the model's sigma so that it covers 68 % of the errors on frames not trained on."""
+    from sdcnet.training.uncertainty import calibrated, error_ratios
+
+    model, state = load_checkpoint(args.checkpoint)
+    store = SampleStore(args.data)
+    records = store.split(args.split, args.limit)
+    if not records:
+        raise ValueError(f"split {args.split!r} is empty in {args.data}")
+    fixed, report = calibrated(model, error_ratios(model, store, records))
+    keep = {k: v for k, v in state.items() if k not in ("model", "model_config")}
+    keep["sigma_calibration"] = {
+        **report,
+        "data": args.data,
+        "split": args.split,
+        "frames": len(records),
+    }
+    save_checkpoint(Path(args.out), fixed, **keep)
+    print(
+        f"sigma x {report['factor']:.3f} (sigma_per_scale {report['sigma_per_scale']:.3f}): "
+        f"within 1 / 2 sigma {100 * report['within_1_before']:.1f} / "
+        f"{100 * report['within_2_before']:.1f} % -> {100 * report['within_1_after']:.1f} / "
+        f"{100 * report['within_2_after']:.1f} % on {report['pixels']} px of {len(records)} "
+        f"{args.split} frames; wrote {args.out}"
+    )
+    return 0
+
+
 def cmd_card(args: argparse.Namespace) -> int:
     model, state = load_checkpoint(args.checkpoint)
     reports = [json.loads(Path(r).read_text()) for r in args.report]
@@ -431,7 +565,8 @@ def cmd_card(args: argparse.Namespace) -> int:
         meta = {p.key: p.value for p in onnx.load(args.onnx).metadata_props}
         version = meta.get("model_version", version)
     notes = Path(args.notes).read_text() if args.notes else ""
-    Path(args.out).write_text(model_card(state, model, reports, version, notes))
+    robustness = json.loads(Path(args.robustness).read_text()) if args.robustness else None
+    Path(args.out).write_text(model_card(state, model, reports, version, notes, robustness))
     print(f"wrote {args.out}")
     return 0
 

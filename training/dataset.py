@@ -1,32 +1,51 @@
-"""PyTorch view of a generated dataset: tiles around the spacecraft, with augmentation.
+"""PyTorch view of a generated dataset: tiles of each frame's working grid, with augmentation.
 
-Training tiles are ``tile`` x ``tile`` windows at full resolution placed on the spacecraft's
-region (the same LIDAR-bounded region the service crops to): inside it when the region is
-larger, around it when smaller (paper: random crop to 512 x 512). Augmentation: horizontal and
-vertical flips, brightness, contrast and gamma jitter of the gray image.
+A training tile is what the network sees in service, cut smaller: the frame's spacecraft
+region resampled to its working grid by the pipeline itself (``sdcnet.pipeline.working_inputs``),
+then a ``tile`` x ``tile`` window of it (the whole grid, zero-padded, when it is smaller;
+paper: random crop to 512 x 512). The working-pixel budget is jittered per item, so the network
+also sees each spacecraft a little larger and smaller than the pipeline will show it.
+Augmentation: horizontal and vertical flips, brightness, contrast and gamma jitter.
 """
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import torch
 from torch.utils.data import Dataset
 
 from sdcnet.dataset_format import SampleStore
-from sdcnet.pipeline import Region, normalise_gray, region_of_interest
+from sdcnet.pipeline import WORK_PIXELS, resample_image, working_inputs
+
+#: Range of the working-pixel budget a training item is drawn at, as a factor of the pipeline's.
+BUDGET_JITTER = (0.5, 1.5)
 
 
-def training_window(
-    region: Region, height: int, width: int, tile: int, rng: np.random.Generator
-) -> Region:
-    """A tile x tile window on ``region``, inside a height x width frame (tile <= frame)."""
+def resample_truth(depth: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Ground-truth depth (metres, 0 = background) on a grid of ``shape``: foreground where
+    the spacecraft covers at least half of a pixel, with the depth of the nearest sample."""
+    if depth.shape == shape:
+        return depth
+    cover = resample_image((depth > 0).astype(np.float32), shape)
+    nearest = cv2.resize(depth, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+    return np.where(cover >= 0.5, nearest, 0).astype(np.float32)
 
-    def start(lo: int, hi: int, size: int) -> int:
-        a, b = (lo, hi - tile) if hi - lo >= tile else (hi - tile, lo)
-        return int(np.clip(rng.integers(a, b + 1), 0, size - tile))
 
-    y0, x0 = start(region.y0, region.y1, height), start(region.x0, region.x1, width)
-    return Region(y0, y0 + tile, x0, x0 + tile)
+def random_window(
+    arrays: list[np.ndarray], tile: int, rng: np.random.Generator
+) -> list[np.ndarray]:
+    """The same random ``tile`` x ``tile`` window of each (h, w) array; a side shorter than the
+    tile is zero-padded after it."""
+    h, w = arrays[0].shape
+    y = int(rng.integers(0, max(h - tile, 0) + 1))
+    x = int(rng.integers(0, max(w - tile, 0) + 1))
+    out = []
+    for a in arrays:
+        window = a[y : y + tile, x : x + tile]
+        pad = ((0, tile - window.shape[0]), (0, tile - window.shape[1]))
+        out.append(np.pad(window, pad) if any(p for _, p in pad) else window)
+    return out
 
 
 def jitter_gray(gray: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -38,9 +57,11 @@ def jitter_gray(gray: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 class TileDataset(Dataset):
-    """Items: dict of float32 tensors gray (1, T, T) in [0, 1], sparse and depth (1, T, T) in m.
+    """Items: dict of float32 tensors gray (1, T, T) in [0, 1], sparse and depth (1, T, T) in m,
+    focal_px (1, 1, 1): the focal length in the tile's pixels.
 
-    With ``tile=None`` an item is the whole spacecraft region (variable size, batch 1).
+    With ``tile=None`` an item is the whole working grid at the pipeline's own budget
+    (variable size, batch 1).
     """
 
     def __init__(
@@ -63,20 +84,25 @@ class TileDataset(Dataset):
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         sample = self.store.load(self.records[index])
         rng = np.random.default_rng([self.seed, self.epoch, index])
-        region = region_of_interest(sample.sparse, self.stride)
+        budget = WORK_PIXELS
+        if self.augment:
+            budget = round(budget * rng.uniform(*BUDGET_JITTER))
+        fx = float(sample.meta["intrinsics"]["fx"])
+        inputs = working_inputs(sample.gray, sample.sparse, fx, self.stride, budget)
+        rows, cols = inputs.grid.region.slices
+        depth = resample_truth(sample.depth[rows, cols], inputs.grid.shape)
+        gray, sparse = inputs.gray, inputs.sparse
         if self.tile is not None:
-            H, W = sample.gray.shape
-            region = training_window(region, H, W, min(self.tile, H, W), rng)
-        rows, cols = region.slices
-        gray = normalise_gray(sample.gray[rows, cols])
-        sparse, depth = sample.sparse[rows, cols], sample.depth[rows, cols]
+            gray, sparse, depth = random_window([gray, sparse, depth], self.tile, rng)
         if self.augment:
             gray = jitter_gray(gray, rng)
             if rng.random() < 0.5:
                 gray, sparse, depth = gray[:, ::-1], sparse[:, ::-1], depth[:, ::-1]
             if rng.random() < 0.5:
                 gray, sparse, depth = gray[::-1], sparse[::-1], depth[::-1]
-        return {
+        item = {
             name: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None]
             for name, a in (("gray", gray), ("sparse", sparse), ("depth", depth))
         }
+        item["focal_px"] = torch.full((1, 1, 1), inputs.focal_px)
+        return item

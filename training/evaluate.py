@@ -1,34 +1,36 @@
 """Evaluation on a split with the paper's metrics, through PyTorch or the exported ONNX model.
 
-Every method runs through ``sdcnet.pipeline.complete`` on whole 1024 x 1024 frames, exactly as
-the service does: crop to the LIDAR-bounded region, infer, paste back.
+Every method runs through ``sdcnet.pipeline.complete`` on whole frames, exactly as the service
+does: crop to the LIDAR-bounded region, resample to the working grid, infer, paste back; the
+classical fill (``classical_fill``) of each frame is the reference of the depth figures.
 """
 
 from __future__ import annotations
 
-import functools
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
-from torch.nn import functional as F
 from tqdm import tqdm
 
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
-from sdcnet.metrics import MASK_NAMES, MetricTable, frame_report
-from sdcnet.pipeline import ModelFn, complete
-from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
+from sdcnet.metrics import MASK_NAMES, MetricTable, false_specks, frame_metrics, frame_report
+from sdcnet.pipeline import WORK_PIXELS, ModelFn, complete
+from sdcnet.training.classical_fill import classical_fill
 from sdcnet.training.model.sdcnet import SDCNet
 
 
 def torch_model_fn(model: torch.nn.Module, device: torch.device | str = "cpu") -> ModelFn:
-    """Wrap a (gray, sparse) -> (depth, probability) module as a numpy callable."""
+    """Wrap a (gray, sparse, focal_px) -> (depth, probability, sigma) module as a numpy
+    callable."""
     model = model.eval().to(device)
 
     @torch.no_grad()
-    def run(gray: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        depth, prob = model(torch.from_numpy(gray).to(device), torch.from_numpy(sparse).to(device))
-        return depth.cpu().numpy(), prob.cpu().numpy()
+    def run(gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray):
+        inputs = (torch.from_numpy(a).to(device) for a in (gray, sparse, focal_px))
+        return tuple(t.cpu().numpy() for t in model(*inputs))
 
     return run
 
@@ -39,9 +41,9 @@ def torch_segmentation_fn(model: SDCNet, device: torch.device | str = "cpu") -> 
     model = model.eval().to(device)
 
     @torch.no_grad()
-    def run(gray: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        prob = model.segment(torch.from_numpy(gray).to(device), torch.from_numpy(sparse).to(device))
-        return np.zeros_like(gray), prob.cpu().numpy()
+    def run(gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray):
+        inputs = (torch.from_numpy(a).to(device) for a in (gray, sparse, focal_px))
+        return np.zeros_like(gray), model.segment(*inputs).cpu().numpy()
 
     return run
 
@@ -52,64 +54,86 @@ def mask_metrics_only(means: dict[str, float]) -> dict[str, float]:
     return {k: v if k in (*MASK_NAMES, "specks") else float("nan") for k, v in means.items()}
 
 
-class ClassicalFill(torch.nn.Module):
-    """The floor: the network's own morphological pre-fill alone, mask = filled pixels.
-
-    Same working resolution and kernels as inside SDCNet; nearest upsampling back.
-    """
-
-    def __init__(self, factor: int = 4):
-        super().__init__()
-        self.factor = factor
-        self.stride = factor  # crops need only be whole working pixels
-        self.prefill = MorphologicalPrefill()
-
-    def forward(
-        self, gray: torch.Tensor, sparse: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        H, W = sparse.shape[-2:]
-        f = self.factor
-        padded = F.pad(sparse, (0, (f - W % f) % f, 0, (f - H % f) % f))
-        filled = self.prefill(near_wins_downsample(padded, f))
-        depth = F.interpolate(filled, scale_factor=f, mode="nearest")[..., :H, :W]
-        return depth, (depth > 0).to(depth.dtype)
+#: One way to answer a frame: sample -> depth (H, W) float32 metres (0 off the mask), mask
+#: (H, W) bool and the depth's uncertainty sigma (H, W) float32 metres, or None for a method
+#: without one. A network through the pipeline (``network``) or the classical fill.
+Method = Callable[[Sample], tuple[np.ndarray, np.ndarray, np.ndarray | None]]
 
 
-@functools.cache
-def classical_fill() -> tuple[ModelFn, int]:
-    """The classical fill as a pipeline model, and its stride: the reference every depth
-    metric beyond the paper's compares against on the same frame."""
-    fill = ClassicalFill()
-    return torch_model_fn(fill), fill.stride
+def network(model_fn: ModelFn, stride: int, work_pixels: int = WORK_PIXELS) -> Method:
+    """A network as the service runs it: ``sdcnet.pipeline.complete`` on the whole frame."""
+
+    def answer(sample: Sample) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        fx = float(sample.meta["intrinsics"]["fx"])
+        result = complete(model_fn, sample.gray, sample.sparse, fx, stride, work_pixels)
+        return result.depth, result.mask, result.sigma
+
+    return answer
 
 
-def score_frame(model_fn: ModelFn, sample: Sample, stride: int) -> dict[str, float]:
+def classical(sample: Sample) -> tuple[np.ndarray, np.ndarray, None]:
+    """The classical morphological fill of the frame's returns (``classical_fill``)."""
+    return (*classical_fill(sample.sparse), None)
+
+
+class StoredAnswers:
+    """Answers made elsewhere (another version of sdcnet, another system): one
+    ``<frame id>.npz`` per frame in ``folder`` with ``depth`` (metres), ``mask`` and the
+    ``milliseconds`` it took (``benchmarks/previous_model.py`` writes them); scored like any
+    method."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise FileNotFoundError(f"no answers folder {self.folder}")
+
+    def _load(self, sample: Sample) -> dict[str, np.ndarray]:
+        path = self.folder / f"{sample.meta['id']}.npz"
+        if not path.is_file():
+            raise FileNotFoundError(f"{self.folder} holds no answer for frame {sample.meta['id']}")
+        with np.load(path, allow_pickle=False) as answer:
+            return {k: answer[k] for k in answer.files}
+
+    def __call__(self, sample: Sample) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        answer = self._load(sample)
+        sigma = answer["sigma"].astype(np.float32) if "sigma" in answer else None
+        return answer["depth"].astype(np.float32), answer["mask"].astype(bool), sigma
+
+    def milliseconds(self, sample: Sample) -> float:
+        """What the frame took where it was answered."""
+        return float(self._load(sample)["milliseconds"])
+
+
+def score_frame(method: Method, sample: Sample) -> dict[str, float]:
     """Every metric of ``sdcnet.metrics.frame_report`` for one frame, the classical fill of
     the same frame as the reference."""
-    result = complete(model_fn, sample.gray, sample.sparse, stride=stride)
-    fill_fn, fill_stride = classical_fill()
-    fill = complete(fill_fn, sample.gray, sample.sparse, stride=fill_stride)
-    return frame_report(
-        result.depth,
-        result.mask,
-        fill.depth,
-        fill.mask,
-        sample.depth,
-        sample.sparse,
-        Intrinsics(**sample.meta["intrinsics"]),
-    )
+    depth, mask, sigma = method(sample)
+    fill_depth, fill_mask, _ = classical(sample)
+    K = Intrinsics(**sample.meta["intrinsics"])
+    return frame_report(depth, mask, fill_depth, fill_mask, sample.depth, sample.sparse, K, sigma)
+
+
+def score_mask(method: Method, sample: Sample) -> dict[str, float]:
+    """The paper's six metrics and the false specks of one frame, without the reports that
+    need the classical fill, the normals or sigma: what a mask alone is judged by."""
+    depth, mask, _ = method(sample)
+    report = frame_metrics(depth, mask, sample.depth)
+    report["specks"] = float(false_specks(mask, sample.sparse, sample.depth))
+    return report
 
 
 def evaluate_records(
-    model_fn: ModelFn,
+    method: Method,
     store: SampleStore,
     records: list[dict],
-    stride: int,
     progress: bool = True,
     desc: str = "evaluate",
+    mask_only: bool = False,
 ) -> MetricTable:
-    """Per-image metrics of ``model_fn`` over ``records`` of ``store`` (``score_frame``)."""
+    """Per-image metrics of ``method`` over ``records`` of ``store`` (``score_frame``, or
+    ``score_mask`` when only the mask matters)."""
+    score = score_mask if mask_only else score_frame
     table = MetricTable()
     for record in tqdm(records, desc=desc, unit="img", disable=not progress, leave=False):
-        table.add(score_frame(model_fn, store.load(record), stride))
+        table.add(score(method, store.load(record)))
     return table

@@ -26,9 +26,14 @@ def soft_iou_loss(probability: torch.Tensor, gt_depth: torch.Tensor) -> torch.Te
 
 
 def foreground_depth_loss(
-    depth: torch.Tensor, probability: torch.Tensor, gt_depth: torch.Tensor
+    depth: torch.Tensor,
+    probability: torch.Tensor,
+    gt_depth: torch.Tensor,
+    unit: torch.Tensor | float = 1.0,
 ) -> torch.Tensor:
-    """L1 depth error over the predicted foreground (eq. 7), metres.
+    """L1 depth error over the predicted foreground (eq. 7), in ``unit`` (metres, or a (B, 1,
+    1, 1) tensor of each frame's unit: the model's ``residual_unit``, so that a frame at 3 m
+    and one at 250 m weigh alike).
 
     Pixels of the predicted foreground that are sky in the ground truth have no depth to learn
     (eq. 7 would pull them towards 0 m), so the mean runs over predicted ∩ true foreground.
@@ -37,7 +42,7 @@ def foreground_depth_loss(
     region = (probability > 0.5) & (gt_depth > 0)
     if not torch.any(region):
         return depth.sum() * 0.0
-    return (depth - gt_depth).abs()[region].mean()
+    return ((depth - gt_depth).abs() / unit)[region].mean()
 
 
 def dense_depth_loss(depth: torch.Tensor, gt_depth: torch.Tensor) -> torch.Tensor:
@@ -46,10 +51,14 @@ def dense_depth_loss(depth: torch.Tensor, gt_depth: torch.Tensor) -> torch.Tenso
 
 
 def depth_gradient_loss(
-    depth: torch.Tensor, probability: torch.Tensor, gt_depth: torch.Tensor
+    depth: torch.Tensor,
+    probability: torch.Tensor,
+    gt_depth: torch.Tensor,
+    unit: torch.Tensor | float = 1.0,
 ) -> torch.Tensor:
     """L1 error of the depth differences between horizontally and vertically adjacent pixels,
-    where both lie in predicted ∩ true foreground, metres per pixel.
+    where both lie in predicted ∩ true foreground, ``unit`` per pixel (as
+    ``foreground_depth_loss``).
 
     The L1 depth loss forgives a ripple of a centimetre between scan lines; the slopes it leaves
     tilt the surface normals by degrees (a flat panel comes out corrugated). This term asks for
@@ -62,6 +71,25 @@ def depth_gradient_loss(
         both = region.narrow(dim, 0, n) & region.narrow(dim, 1, n)
         pred_step = depth.narrow(dim, 1, n) - depth.narrow(dim, 0, n)
         true_step = gt_depth.narrow(dim, 1, n) - gt_depth.narrow(dim, 0, n)
-        errors = errors + (pred_step - true_step).abs()[both].sum()
+        errors = errors + ((pred_step - true_step).abs() / unit)[both].sum()
         count += int(both.sum())
     return errors / max(count, 1)
+
+
+def laplace_nll(
+    depth: torch.Tensor,
+    scale: torch.Tensor,
+    probability: torch.Tensor,
+    gt_depth: torch.Tensor,
+    unit: torch.Tensor | float = 1.0,
+) -> torch.Tensor:
+    """Negative log-likelihood of the true depth under a Laplace distribution centred on the
+    predicted depth with ``scale`` (metres), mean over predicted ∩ true foreground:
+    |d - d_true| / b + log(b / unit), constant log 2 left out. Its minimum over b is the mean
+    absolute error, so a scale trained with it says how wrong each pixel's depth is. Callers
+    pass ``depth`` detached: the uncertainty learns from the depth, never the other way."""
+    region = (probability > 0.5) & (gt_depth > 0)
+    if not torch.any(region):
+        return scale.sum() * 0.0
+    b = scale.clamp_min(1e-6)
+    return ((depth - gt_depth).abs() / b + torch.log(b / unit))[region].mean()

@@ -5,13 +5,18 @@ The clouds of a frame (camera frame, metres), each registered by ``sdcnet.regist
 with the frame's LIDAR returns as the final refinement (the service's own path):
 
 - ``completed``: the model's completed depth (ONNX, ``sdcnet.pipeline.complete``);
-- ``classical fill``: the morphological fill's (``ClassicalFill``) depth;
+- ``classical fill``: the morphological fill's depth (``sdcnet.training.classical_fill``);
 - ``raw returns``: the LIDAR returns alone.
 
 Tracking: the first frame of a sequence from scratch, every next one from the constant-velocity
-prediction of the method's own last two answers (``sdcnet.rigid.extrapolate``).
-Errors: rotation (degrees), translation (metres, and per cent of the range); success: within
-2 degrees and 0.2 m. Times: registration alone, and the cloud's (completion or fill) apart.
+prediction of the method's own last two answers (``sdcnet.rigid.extrapolate``); and single
+frames tracked from the truth perturbed by ``PERTURBATIONS`` (a seeded random axis and
+direction): what a filter's prediction can be after a missed frame.
+Errors: rotation (degrees), translation (metres, and per cent of the range), raw and modulo
+the target's symmetries (the nearest of the answer turned by each); success: within 2 degrees
+and 0.2 m. The verdict mix, and "reliable but wrong": answers marked reliable that are not a
+success (raw errors: a symmetric twin is wrong for a filter). Times: registration alone, and
+the cloud's (completion or fill) apart.
 """
 
 from __future__ import annotations
@@ -28,13 +33,13 @@ from tqdm import tqdm
 
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
-from sdcnet.pipeline import ModelFn, complete
 from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
-from sdcnet.rigid import Pose, extrapolate, pose_errors
+from sdcnet.rigid import Pose, axis_angle, extrapolate, pose_errors
 from sdcnet.targets import Target, prepare_target
-from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 from sdcnet.training.data.spacecraft import SpacecraftModel
+from sdcnet.training.evaluate import Method
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,
@@ -46,6 +51,9 @@ from sdcnet.visualize import (
 
 SUCCESS_DEG, SUCCESS_M = 2.0, 0.2
 RAW = "raw returns"
+#: Perturbations of the true pose that perturbed-init tracking starts from: (degrees, metres).
+PERTURBATIONS = ((5.0, 0.3), (10.0, 1.0))
+VERDICTS = ("reliable", "ambiguous", "unreliable")
 
 
 @dataclass(frozen=True)
@@ -63,25 +71,43 @@ class FrameResult:
     among_answers: bool  # the truth is the answer or one of its alternatives (2 deg, 0.2 m)
     registration_ms: float
     cloud_ms: float
+    # Reports written before the verdict lack the fields below: their defaults say "unknown".
+    verdict: str = ""  # of the answer ("" when no pose)
+    reasons: tuple[str, ...] = ()
+    consistency: float = float("nan")
+    runner_up_consistency: float = float("nan")  # NaN: no other pose considered
+    points: int = 0  # of the downsampled cloud registered
+    symmetric_rotation_deg: float = float("nan")  # errors modulo the target's symmetries
+    symmetric_translation_m: float = float("nan")
+    rotation_sigma_deg: float = float("nan")  # the answer's own (NaN: none)
+    translation_sigma_m: float = float("nan")
 
     @property
     def success(self) -> bool:
         return self.rotation_deg <= SUCCESS_DEG and self.translation_m <= SUCCESS_M
+
+    @property
+    def symmetric_success(self) -> bool:
+        return self.symmetric_rotation_deg <= SUCCESS_DEG and (
+            self.symmetric_translation_m <= SUCCESS_M
+        )
+
+    @property
+    def reliable_but_wrong(self) -> bool:
+        return self.verdict == "reliable" and not self.success
 
 
 def truth_of(sample: Sample) -> Pose:
     return Pose(np.array(sample.meta["pose"]["R"]), np.array(sample.meta["pose"]["t"]))
 
 
-def clouds(
-    sample: Sample, methods: dict[str, tuple[ModelFn, int]]
-) -> Iterator[tuple[str, np.ndarray, float]]:
+def clouds(sample: Sample, methods: dict[str, Method]) -> Iterator[tuple[str, np.ndarray, float]]:
     """(name, cloud, milliseconds to make it) per method, then the raw returns."""
     K = Intrinsics(**sample.meta["intrinsics"])
-    for name, (fn, stride) in methods.items():
+    for name, method in methods.items():
         start = time.perf_counter()
-        result = complete(fn, sample.gray, sample.sparse, stride=stride)
-        cloud = back_project(result.depth, result.mask, K)
+        depth, mask, _ = method(sample)
+        cloud = back_project(depth, mask, K)
         yield name, cloud, (time.perf_counter() - start) * 1e3
     yield RAW, back_project(sample.sparse, sample.sparse > 0, K), 0.0
 
@@ -95,30 +121,60 @@ def _result(
     ms: tuple[float, float],
 ) -> FrameResult:
     truth = truth_of(sample)
-    if estimate is None:
-        errors, ambiguous, among = (float("nan"), float("nan")), False, False
-    else:
-        errors = pose_errors(estimate.pose, truth)
-        ambiguous = estimate.ambiguous
-        among = any(
-            r <= SUCCESS_DEG and t <= SUCCESS_M
-            for r, t in (pose_errors(h.pose, truth) for h in estimate.alternatives)
-        ) or (errors[0] <= SUCCESS_DEG and errors[1] <= SUCCESS_M)
-    return FrameResult(
-        target.name,
-        cloud_name,
-        mode,
-        sample.meta["id"],
-        sample.meta.get("trajectory", ""),
-        float(np.linalg.norm(truth.t)),
-        int(sample.meta["returns"]),
-        errors[0],
-        errors[1],
-        ambiguous,
-        among,
-        ms[0],
-        ms[1],
+    frame = dict(
+        spacecraft=target.name,
+        cloud=cloud_name,
+        mode=mode,
+        frame=sample.meta["id"],
+        trajectory=sample.meta.get("trajectory", ""),
+        range_m=float(np.linalg.norm(truth.t)),
+        returns=int(sample.meta["returns"]),
+        registration_ms=ms[0],
+        cloud_ms=ms[1],
     )
+    if estimate is None:
+        nan = float("nan")
+        return FrameResult(
+            **frame, rotation_deg=nan, translation_m=nan, ambiguous=False, among_answers=False
+        )
+    errors = pose_errors(estimate.pose, truth)
+    among = any(
+        r <= SUCCESS_DEG and t <= SUCCESS_M
+        for r, t in (pose_errors(h.pose, truth) for h in estimate.alternatives)
+    ) or (errors[0] <= SUCCESS_DEG and errors[1] <= SUCCESS_M)
+    symmetric = symmetric_errors(target, estimate.pose, truth)
+    runner_up = estimate.runner_up_consistency
+    return FrameResult(
+        **frame,
+        rotation_deg=errors[0],
+        translation_m=errors[1],
+        ambiguous=estimate.ambiguous,
+        among_answers=among,
+        verdict=estimate.verdict,
+        reasons=tuple(estimate.reasons),
+        consistency=estimate.consistency,
+        runner_up_consistency=float("nan") if runner_up is None else runner_up,
+        points=estimate.points,
+        symmetric_rotation_deg=symmetric[0],
+        symmetric_translation_m=symmetric[1],
+        rotation_sigma_deg=estimate.rotation_sigma_deg,
+        translation_sigma_m=estimate.translation_sigma_m,
+    )
+
+
+def symmetric_errors(target: Target, estimate: Pose, truth: Pose) -> tuple[float, float]:
+    """(degrees, metres) of ``estimate`` modulo the target's symmetries: the errors of the
+    answer, or of it turned by a symmetry, whichever turn comes nearest in rotation."""
+    turned = [estimate.matrix() @ S for S in [np.eye(4), *target.model.symmetries]]
+    return min((pose_errors(Pose.from_matrix(T), truth) for T in turned), key=lambda e: e[0])
+
+
+def perturbed(truth: Pose, rotation_deg: float, translation_m: float, rng) -> Pose:
+    """``truth`` turned by ``rotation_deg`` about a random axis (through the target's frame
+    origin, camera frame) and moved by ``translation_m`` in a random direction."""
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    R = axis_angle(axis / np.linalg.norm(axis), np.radians(rotation_deg)) @ truth.R
+    return Pose(R, truth.t + translation_m * direction / np.linalg.norm(direction))
 
 
 def _register(
@@ -133,7 +189,7 @@ def _register(
 
 
 def evaluate_frames(
-    frames: Iterable[tuple[Target, Sample]], methods: dict[str, tuple[ModelFn, int]]
+    frames: Iterable[tuple[Target, Sample]], methods: dict[str, Method]
 ) -> list[FrameResult]:
     """Every frame from scratch, from every cloud."""
     results = []
@@ -146,10 +202,31 @@ def evaluate_frames(
     return results
 
 
+def evaluate_perturbed(
+    frames: Iterable[tuple[Target, Sample]], methods: dict[str, Method], seed: int = 0
+) -> list[FrameResult]:
+    """Every frame tracked from its true pose perturbed by each of ``PERTURBATIONS``, from
+    every cloud (the same init for every cloud); mode "init D deg, M m"."""
+    rng = np.random.default_rng(seed)
+    results = []
+    for target, sample in frames:
+        K = Intrinsics(**sample.meta["intrinsics"])
+        returns = back_project(sample.sparse, sample.sparse > 0, K)
+        inits = {
+            f"init {deg:g} deg, {m:g} m": perturbed(truth_of(sample), deg, m, rng)
+            for deg, m in PERTURBATIONS
+        }
+        for name, cloud, cloud_ms in clouds(sample, methods):
+            for mode, init in inits.items():
+                estimate, ms = _register(target, cloud, returns, init)
+                results.append(_result(target, sample, name, mode, estimate, (ms, cloud_ms)))
+    return results
+
+
 def evaluate_sequences(
     store: SampleStore,
     targets: dict[str, Target],
-    methods: dict[str, tuple[ModelFn, int]],
+    methods: dict[str, Method],
     progress: bool = True,
 ) -> list[FrameResult]:
     """Every sequence of ``store`` tracked, from every cloud (see the module docstring)."""
@@ -185,6 +262,7 @@ def summary(results: list[FrameResult]) -> dict[str, float]:
     rot = np.array([r.rotation_deg for r in posed])
     trans = np.array([r.translation_m for r in posed])
     share = np.array([100 * r.translation_m / r.range_m for r in posed])
+    verdicts = {v: 100 * float(np.mean([r.verdict == v for r in results])) for v in VERDICTS}
     return {
         "frames": len(results),
         "no_pose": len(results) - len(posed),
@@ -194,6 +272,9 @@ def summary(results: list[FrameResult]) -> dict[str, float]:
         "translation_median_m": float(np.median(trans)) if len(trans) else float("nan"),
         "translation_mean_pct_range": float(share.mean()) if len(share) else float("nan"),
         "success_pct": 100 * float(np.mean([r.success for r in results])),
+        "symmetric_success_pct": 100 * float(np.mean([r.symmetric_success for r in results])),
+        **{f"verdict_{v}_pct": share for v, share in verdicts.items()},
+        "reliable_but_wrong": sum(r.reliable_but_wrong for r in results),
         "among_answers_pct": 100 * float(np.mean([r.among_answers for r in results])),
         "ambiguous_pct": 100 * float(np.mean([r.ambiguous for r in results])),
         "registration_p50_ms": float(np.median([r.registration_ms for r in results])),
@@ -205,17 +286,21 @@ def table(rows: dict[str, dict[str, float]]) -> str:
     """Markdown: one row per (what, cloud)."""
     lines = [
         "| | frames | rot. mean deg | rot. median | transl. mean m | median | % of range | "
-        "success (2 deg, 0.2 m) | truth among answers | ambiguous | registration p50 ms | "
+        "success (2 deg, 0.2 m) | modulo symmetry | truth among answers | ambiguous | "
+        "verdict reliable / ambiguous / unreliable | reliable but wrong | registration p50 ms | "
         "cloud p50 ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, s in rows.items():
         lines.append(
             f"| {name} | {s['frames']} | {s['rotation_mean_deg']:.2f} | "
             f"{s['rotation_median_deg']:.2f} | {s['translation_mean_m']:.3f} | "
             f"{s['translation_median_m']:.3f} | {s['translation_mean_pct_range']:.3f} | "
-            f"{s['success_pct']:.1f} % | {s['among_answers_pct']:.1f} % | "
-            f"{s['ambiguous_pct']:.1f} % | {s['registration_p50_ms']:.1f} | "
+            f"{s['success_pct']:.1f} % | {s['symmetric_success_pct']:.1f} % | "
+            f"{s['among_answers_pct']:.1f} % | {s['ambiguous_pct']:.1f} % | "
+            f"{s['verdict_reliable_pct']:.0f} / {s['verdict_ambiguous_pct']:.0f} / "
+            f"{s['verdict_unreliable_pct']:.0f} % | "
+            f"{s['reliable_but_wrong']} | {s['registration_p50_ms']:.1f} | "
             f"{s['cloud_p50_ms']:.1f} |"
         )
     return "\n".join(lines)
@@ -264,7 +349,42 @@ def report(results: dict[str, list[FrameResult]], clouds_order: list[str]) -> tu
         data[name]["per_spacecraft"] = per_craft
         data[name]["frames"] = [asdict(r) for r in frames]
         lines += [f"#### {name}: per spacecraft", "", table(per_craft), ""]
+    every = [r for frames in results.values() for r in frames]
+    reliable = [r for r in every if r.verdict == "reliable"]
+    wrong = sum(r.reliable_but_wrong for r in reliable)
+    lines.append(
+        f"Over all {len(every)} answers: {len(reliable)} marked reliable, of which {wrong} "
+        f"wrong (beyond {SUCCESS_DEG:g} degrees or {SUCCESS_M:g} m)."
+    )
+    if reliable:
+        rotation, translation = sigma_coverage(reliable)
+        lines += [
+            "",
+            "Of those marked reliable, the errors within 1 / 2 / 3 times the answer's own "
+            "sigma: rotation "
+            + " / ".join(f"{c:.0f}" for c in rotation)
+            + " %, translation "
+            + " / ".join(f"{c:.0f}" for c in translation)
+            + " %.",
+        ]
     return "\n".join(lines), data
+
+
+def sigma_coverage(results: list[FrameResult]) -> tuple[list[float], list[float]]:
+    """Per cent of ``results`` whose rotation (then translation) error is within 1, 2 and 3
+    times the answer's ``rotation_sigma_deg`` (``translation_sigma_m``); an answer without a
+    sigma counts as not covered."""
+
+    def within(errors: np.ndarray, sigmas: np.ndarray) -> list[float]:
+        return [100 * float(np.mean(errors <= k * sigmas)) for k in (1, 2, 3)]
+
+    rows = np.array(
+        [
+            (r.rotation_deg, r.rotation_sigma_deg, r.translation_m, r.translation_sigma_m)
+            for r in results
+        ]
+    ).reshape(-1, 4)
+    return within(rows[:, 0], rows[:, 1]), within(rows[:, 2], rows[:, 3])
 
 
 def with_pose(sample: Sample, model: SpacecraftModel) -> Sample:
@@ -298,7 +418,7 @@ def procedural_models(
     config = GenerateConfig(models=info["models"], seed=info["seed"])
     models = {}
     for model_id in ids:
-        model = build_model(config, model_id)
+        model = build_spacecraft(config, model_id)
         models[model_id] = (
             model,
             prepare_target(model.name, model.mesh.vertices, model.mesh.faces),
@@ -316,19 +436,19 @@ def split_ids(dataset: Path, split: str, limit: int) -> list[int]:
 
 
 def gallery_rows(
-    picks: list[tuple[FrameResult, Target, Sample]], fn: ModelFn, stride: int, cloud: str
+    picks: list[tuple[FrameResult, Target, Sample]], method: Method, cloud: str
 ) -> list[list[np.ndarray]]:
     """One row per pick: gray | LIDAR returns | completed depth | the target drawn at the
-    pose estimated from ``cloud`` ("completed" by ``fn``, or the raw returns) | ... at the
+    pose estimated from ``cloud`` ("completed" by ``method``, or the raw returns) | ... at the
     true pose; zoomed on the spacecraft."""
     rows = []
     for result, target, sample in picks:
         K = Intrinsics(**sample.meta["intrinsics"])
-        completion = complete(fn, sample.gray, sample.sparse, stride=stride)
+        depth, mask, _ = method(sample)
         returns = back_project(sample.sparse, sample.sparse > 0, K)
-        points = back_project(completion.depth, completion.mask, K) if cloud != RAW else returns
+        points = back_project(depth, mask, K) if cloud != RAW else returns
         estimate = estimate_pose(target.model, points, returns)
-        window = object_crop(sample.mask | completion.mask)
+        window = object_crop(sample.mask | mask)
         scale = max(1, round((window[0].stop - window[0].start) / 256 / 2))
         base = gray_bgr(sample.gray)
         drawn = target.model.render_points
@@ -340,7 +460,7 @@ def gallery_rows(
                 labelled(
                     dilated_returns(sample.sparse, 4)[window], f"{sample.meta['returns']} returns"
                 ),
-                labelled(colorize_depth(completion.depth)[window], "completed depth"),
+                labelled(colorize_depth(depth)[window], "completed depth"),
                 labelled(
                     draw_points(base, estimate.pose.apply(drawn), K, radius=scale)[window],
                     f"{cloud}: {rotation_deg:.1f} deg, {translation_m:.2f} m{flag}",

@@ -16,9 +16,8 @@ import numpy as np
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
 from sdcnet.metrics import MetricTable, frame_metrics
-from sdcnet.pipeline import ModelFn, complete
 from sdcnet.pointcloud import back_project
-from sdcnet.training.evaluate import score_frame
+from sdcnet.training.evaluate import Method, score_frame
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,
@@ -31,12 +30,12 @@ from sdcnet.visualize import (
 
 
 def evaluate_per_model(
-    model_fn: ModelFn, store: SampleStore, records: list[dict], stride: int
+    method: Method, store: SampleStore, records: list[dict]
 ) -> dict[str, MetricTable]:
     """Metric tables per spacecraft name, plus 'all'."""
     tables: dict[str, MetricTable] = defaultdict(MetricTable)
     for record in records:
-        metrics = score_frame(model_fn, store.load(record), stride)
+        metrics = score_frame(method, store.load(record))
         tables[record["model_name"]].add(metrics)
         tables["all"].add(metrics)
     return dict(tables)
@@ -56,25 +55,24 @@ def error_map(pred: np.ndarray, mask: np.ndarray, gt: np.ndarray, alpha: float =
 
 
 def gallery_row(
-    model_fn: ModelFn,
+    method: Method,
     sample,
-    stride: int,
     caption: str,
-    others: dict[str, tuple[ModelFn, int]] | None = None,
+    others: dict[str, Method] | None = None,
 ) -> list[np.ndarray]:
     """gray | LIDAR returns | predicted depth | ground truth | error map | side views of the
-    completed cloud, of each of ``others``' clouds (name -> model, stride) and of the true one:
+    completed cloud, of each of ``others``' clouds (name -> method) and of the true one:
     where a flat panel comes out flat, and where it ripples between scan lines."""
-    result = complete(model_fn, sample.gray, sample.sparse, stride=stride)
+    depth, mask, _ = method(sample)
     K = Intrinsics(**sample.meta["intrinsics"])
-    window = object_crop(sample.mask | result.mask)
+    window = object_crop(sample.mask | mask)
     valid = sample.depth[sample.mask]
     near, far = (float(valid.min()), float(valid.max())) if valid.size else (None, None)
-    m = frame_metrics(result.depth, result.mask, sample.depth)
-    sides = [labelled(side_view(back_project(result.depth, result.mask, K)), "completed, side")]
-    for name, (fn, other_stride) in (others or {}).items():
-        other = complete(fn, sample.gray, sample.sparse, stride=other_stride)
-        sides.append(labelled(side_view(back_project(other.depth, other.mask, K)), f"{name}, side"))
+    m = frame_metrics(depth, mask, sample.depth)
+    sides = [labelled(side_view(back_project(depth, mask, K)), "completed, side")]
+    for name, other in (others or {}).items():
+        other_depth, other_mask, _ = other(sample)
+        sides.append(labelled(side_view(back_project(other_depth, other_mask, K)), f"{name}, side"))
     sides.append(labelled(side_view(back_project(sample.depth, sample.mask, K)), "true, side"))
     return [
         labelled(gray_bgr(sample.gray)[window], caption),
@@ -83,31 +81,27 @@ def gallery_row(
             f"{sample.meta['returns']} returns",
         ),
         labelled(
-            colorize_depth(result.depth, near, far)[window],
-            f"predicted, IOU {100 * m['IOU']:.0f} %",
+            colorize_depth(depth, near, far)[window], f"predicted, IOU {100 * m['IOU']:.0f} %"
         ),
         labelled(colorize_depth(sample.depth, near, far)[window], "ground truth"),
-        labelled(
-            error_map(result.depth, result.mask, sample.depth)[window], f"MAEI {m['MAEI']:.2f} m"
-        ),
+        labelled(error_map(depth, mask, sample.depth)[window], f"MAEI {m['MAEI']:.2f} m"),
         *sides,
     ]
 
 
 def gallery(
-    model_fn: ModelFn,
+    method: Method,
     store: SampleStore,
     records: list[dict],
-    stride: int,
     out: Path,
-    others: dict[str, tuple[ModelFn, int]] | None = None,
+    others: dict[str, Method] | None = None,
 ) -> Path:
     """One row per spacecraft (its first view in ``records``); ``others`` add side views."""
     first: dict[str, dict] = {}
     for record in records:
         first.setdefault(record["model_name"], record)
     rows = [
-        gallery_row(model_fn, store.load(r), stride, f"{name} {r['distance_m']:.0f} m", others)
+        gallery_row(method, store.load(r), f"{name} {r['distance_m']:.0f} m", others)
         for name, r in first.items()
     ]
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -18,6 +18,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -28,11 +29,17 @@ from tqdm import tqdm
 
 from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.metrics import NAMES
-from sdcnet.training.checkpoint import load_weights, read_checkpoint, save_checkpoint
+from sdcnet.training.checkpoint import (
+    load_weights,
+    read_checkpoint,
+    save_checkpoint,
+    transplant_weights,
+)
 from sdcnet.training.dataset import TileDataset
 from sdcnet.training.evaluate import (
     evaluate_records,
     mask_metrics_only,
+    network,
     torch_model_fn,
     torch_segmentation_fn,
 )
@@ -40,10 +47,11 @@ from sdcnet.training.losses import (
     dense_depth_loss,
     depth_gradient_loss,
     foreground_depth_loss,
+    laplace_nll,
     segmentation_loss,
     soft_iou_loss,
 )
-from sdcnet.training.model.sdcnet import ModelConfig, SDCNet, build_model
+from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet, build_model
 
 
 class Segmenter(torch.nn.Module):
@@ -54,34 +62,70 @@ class Segmenter(torch.nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
-        return self.model.segment(gray, sparse)
+    def forward(
+        self, gray: torch.Tensor, sparse: torch.Tensor, focal_px: torch.Tensor
+    ) -> torch.Tensor:
+        return self.model.segment(gray, sparse, focal_px)
+
+
+def setting(default: Any, help: str, **flag: Any) -> Any:
+    """A ``TrainConfig`` field with its ``sdc-train fit`` flag's ``help`` (and any other
+    argparse keyword, such as ``choices``) in its metadata: the flags are made from them."""
+    return field(default=default, metadata={"help": help, **flag})
 
 
 @dataclass
 class TrainConfig:
-    """One training run. ``preset`` fills the recipe; any field can be overridden."""
+    """One training run. ``preset`` fills the recipe; any field can be overridden (each is a
+    flag of ``sdc-train fit``: ``--batch-size`` for ``batch_size``)."""
 
-    data: str
-    out: str
-    variant: str = "sdcnet"
-    fsnet_inputs: str = "both"
-    fsnet_epochs: int = 30
-    epochs: int = 50
-    batch_size: int = 8
-    tile: int = 512
-    lr: float = 1e-3
-    weight_decay: float = 1e-3
-    gradient_loss: float = 1.0  # weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)
-    iou_loss: float = 0.0  # weight of a soft-IOU term beside eq. 6's BCE (stage 1)
-    samples_per_epoch: int | None = None  # None: the whole train split every epoch
-    train_samples: int | None = None  # None: every train frame; else this many, evenly spread
-    val_samples: int | None = None  # None: the whole val split
-    workers: int = 2
-    seed: int = 0
-    init_segmentation: str | None = None  # reuse stage 1 of another run (its checkpoint)
-    init_weights: str | None = None  # fine-tune: start both stages from this checkpoint's weights
-    command: str = field(default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]))
+    data: str = field(metadata={"help": "dataset directory (sdc-data generate)"})
+    out: str = field(metadata={"help": "run directory: checkpoints, log.csv, plots"})
+    variant: str = setting("sdcnet", "the network (an ablation variant)", choices=sorted(VARIANTS))
+    fsnet_inputs: str = setting(
+        "both", "what FSNet sees: gray, sparse or both", choices=("both", "gray", "sparse")
+    )
+    fsnet_epochs: int = setting(
+        30, "epochs of stage 1 (FSNet alone); 0 skips it, from --init-weights"
+    )
+    epochs: int = setting(50, "epochs of stage 2 (depth; FSNet frozen); 0 skips it")
+    batch_size: int = setting(8, "tiles per step")
+    tile: int = setting(512, "side of a training tile, pixels")
+    lr: float = setting(1e-3, "Adam's learning rate at the start of each stage (cosine decay)")
+    weight_decay: float = setting(1e-3, "Adam's weight decay")
+    gradient_loss: float = setting(
+        1.0, "weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)"
+    )
+    iou_loss: float = setting(0.0, "weight of a soft-IOU term beside eq. 6's BCE (stage 1)")
+    sigma_loss: float = setting(
+        1.0, "weight of the uncertainty's Laplace NLL (stage 2; depth detached)"
+    )
+    samples_per_epoch: int | None = setting(
+        None, "training frames drawn per epoch (unset: the whole train split)"
+    )
+    train_samples: int | None = setting(None, "train frames used, evenly spread (unset: every one)")
+    val_samples: int | None = setting(
+        None, "val frames, evenly spread (unset: the whole val split)"
+    )
+    workers: int = setting(2, "data-loading processes")
+    seed: int = setting(0, "random seed")
+    init_segmentation: str | None = setting(
+        None, "checkpoint whose trained FSNet to reuse: skips stage 1"
+    )
+    init_weights: str | None = setting(
+        None,
+        "fine-tune: start from this checkpoint's weights (same variant), e.g. the shipped "
+        "model on your own spacecraft; --epochs 0 trains the segmentation alone",
+    )
+    warm_start: str | None = setting(
+        None,
+        "start from a checkpoint of an earlier design: every weight whose name and shape "
+        "fit, and the shared input channels of layers that gained some",
+    )
+    command: str = field(
+        default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]),
+        metadata={"flag": False},  # recorded, not given
+    )
 
 
 PROVENANCE = ("hardware", "train_config", "dataset", "history", "parent", "segmentation_parent")
@@ -192,8 +236,8 @@ class Trainer:
             "hardware": hardware_description(self.device, self.world),
             "train_config": asdict(self.config),
             "dataset": {
-                k: self.store.info[k]
-                for k in ("command", "seed", "models", "views", "size", "split_models")
+                k: self.store.info.get(k, "paper" if k == "world" else None)
+                for k in ("command", "seed", "models", "views", "size", "split_models", "world")
             },
         }
         if self.config.init_weights:
@@ -202,6 +246,9 @@ class Trainer:
         if self.config.init_segmentation and self.model.fsnet is not None:
             state = self._segmentation_checkpoint
             provenance["segmentation_parent"] = {k: state[k] for k in PROVENANCE if k in state}
+        if self.config.warm_start:
+            state = self._warm_checkpoint
+            provenance["warm_start_parent"] = {k: state[k] for k in PROVENANCE if k in state}
         return provenance
 
     def _save(self, name: str, optimizer, scheduler) -> None:
@@ -272,20 +319,26 @@ class Trainer:
         )
 
     def _loss(self, stage: int, batch: dict[str, torch.Tensor], net) -> torch.Tensor:
+        inputs = (batch["gray"], batch["sparse"], batch["focal_px"])
         if stage == 1:  # net is a Segmenter
-            prob = net(batch["gray"], batch["sparse"])
+            prob = net(*inputs)
             loss = segmentation_loss(prob, batch["depth"])
             if self.config.iou_loss:
                 loss = loss + self.config.iou_loss * soft_iou_loss(prob, batch["depth"])
             return loss
-        depth, prob = net(batch["gray"], batch["sparse"])
+        depth, prob, sigma = net(*inputs)
         if self.model.fsnet is None:
             return dense_depth_loss(depth, batch["depth"])
-        loss = foreground_depth_loss(depth, prob, batch["depth"])
+        unit = self.model.residual_unit(batch["sparse"], batch["focal_px"])
+        loss = foreground_depth_loss(depth, prob, batch["depth"], unit)
         if self.config.gradient_loss:
             loss = loss + self.config.gradient_loss * depth_gradient_loss(
-                depth, prob, batch["depth"]
+                depth, prob, batch["depth"], unit
             )
+        if self.config.sigma_loss:
+            scale = sigma / self.model.config.sigma_per_scale
+            nll = laplace_nll(depth.detach(), scale, prob, batch["depth"], unit)
+            loss = loss + self.config.sigma_loss * nll
         return loss
 
     def _train_epoch(self, stage: int, epoch: int, optimizer, net) -> float:
@@ -311,17 +364,18 @@ class Trainer:
         return float(np.mean(losses)) if losses else float("nan")
 
     def validate(self, stage: int) -> dict[str, float]:
-        """The six metrics on the val records. In stage 1 of a fresh run the depth networks are
-        untrained, so only the mask is validated (IOU, IOI; the rest NaN), at FSNet's cost."""
-        mask_only = stage == 1 and not self.config.init_weights
+        """The metrics on the val records. Stage 1 trains the mask alone and keeps its best
+        epoch by IOU, so it validates the mask alone (IOU, IOI, specks; the rest NaN), at
+        FSNet's cost and without the depth reports."""
+        mask_only = stage == 1
         fn = torch_segmentation_fn if mask_only else torch_model_fn
         table = evaluate_records(
-            fn(self.model, self.device),
+            network(fn(self.model, self.device), self.model.config.stride),
             self.store,
             self.val_records,
-            stride=self.model.config.stride,
             progress=self.is_main,
             desc="validate",
+            mask_only=mask_only,
         )
         return mask_metrics_only(table.mean()) if mask_only else table.mean()
 
@@ -365,6 +419,23 @@ class Trainer:
             )
         return state
 
+    @cached_property
+    def _warm_checkpoint(self) -> dict:
+        """The checkpoint of another design the run starts from (``--warm-start``)."""
+        return read_checkpoint(self.config.warm_start, self.device, check_config=False)
+
+    def _warm_start(self) -> None:
+        """Start from every weight of another design that fits (``transplant_weights``)."""
+        report = transplant_weights(self.model, self._warm_checkpoint["model"])
+        if not report["copied"]:
+            raise ValueError(f"{self.config.warm_start}: no weight fits this architecture")
+        if self.is_main:
+            print(
+                f"warm start from {self.config.warm_start}: {len(report['copied'])} tensors "
+                f"copied, {len(report['partial'])} in part ({', '.join(report['partial'])}), "
+                f"{len(report['left'])} left as initialised"
+            )
+
     def _init_weights(self) -> None:
         """Start from a whole trained model of the same variant (fine-tuning)."""
         load_weights(self.model, self._init_checkpoint["model"], self.config.init_weights)
@@ -382,6 +453,8 @@ class Trainer:
         """Run (or resume) both stages; the best checkpoint: best.pt, or best_stage1.pt when
         stage 2 has no epochs (segmentation-only runs)."""
         optimizer_state, scheduler_state = self._resume() if resume else (None, None)
+        if optimizer_state is None and self.config.warm_start:
+            self._warm_start()
         if optimizer_state is None and self.config.init_weights:
             self._init_weights()
         if (

@@ -14,6 +14,7 @@ import numpy as np
 
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR, Intrinsics
 from sdcnet.dataset_format import Sample, sample_id, write_manifest, write_sample
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.npyio import npy_bytes
 
 
@@ -99,10 +100,10 @@ def write_dataset(root: Path, splits: dict[str, int], size: int = 64) -> Path:
 def generated_sample(size: int = 256) -> Sample:
     """One frame rendered by the project's generator at ``size`` x ``size`` (the paper's
     optics): a procedural spacecraft. Needs the ``data`` extra."""
-    from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+    from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
     config = GenerateConfig(models=1, views=1, seed=3, split=(1, 0, 0), size=size)
-    return make_sample(config, build_model(config, 0), 0, 0, "test")
+    return make_sample(config, build_spacecraft(config, 0), 0, 0, "test")
 
 
 @functools.cache
@@ -110,10 +111,12 @@ def generated_samples(size: int = 1024, count: int = 4, seed: int = 5) -> tuple[
     """``count`` rendered frames at ``size`` x ``size``, one per procedural spacecraft of
     ``seed``: different shapes, attitudes and distances (50-250 m), the same for a seed.
     Needs the ``data`` extra."""
-    from sdcnet.training.data.generate import GenerateConfig, build_model, make_sample
+    from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
     config = GenerateConfig(models=count, views=1, seed=seed, split=(count, 0, 0), size=size)
-    return tuple(make_sample(config, build_model(config, m), m, 0, "test") for m in range(count))
+    return tuple(
+        make_sample(config, build_spacecraft(config, m), m, 0, "test") for m in range(count)
+    )
 
 
 def sample_files(s: Sample) -> dict[str, tuple[str, bytes]]:
@@ -149,4 +152,4 @@ def v2_body(gray: np.ndarray, returns: np.ndarray) -> tuple[bytes, dict[str, str
     sends one by default: gray UINT8 and returns FP32 as binary data, every output binary."""
     inputs, binary = v2_inputs(gray, returns, binary=True)
     header = json.dumps({"inputs": inputs, "parameters": {"binary_data_output": True}}).encode()
-    return header + binary, {"Inference-Header-Content-Length": str(len(header))}
+    return header + binary, {HEADER_LENGTH: str(len(header))}

@@ -12,8 +12,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from sdcnet.camera import PAPER_CAMERA, Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.devtools.frames import png_bytes, v2_inputs
 from sdcnet.devtools.targets import write_targets
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense
 
@@ -96,7 +98,8 @@ def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
     a frame (nor that an output is asked for once). Without this, every "valid" case would be
     refused (rightly) and the positive_data_acceptance check would test nothing. Every other
     field keeps its generated value (intrinsics, depth_scale, outlier_removal, format; the v2
-    request's id, parameters and outputs). ``POST /pose`` takes the form of ``POST /complete``
+    request's id, parameters and outputs), intrinsics only where they fit the frame
+    (``_fitting_intrinsics``). ``POST /pose`` takes the form of ``POST /complete``
     and more: its valid cases also name the fuzzed service's target (``fuzz_targets``), send a
     pose as ``init`` when they send one, and keep the frame's own intrinsics and depths (see
     ``_pose_fields``). The frame goes in the transport's arguments, so the
@@ -109,14 +112,15 @@ def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
     operation = f"{case.method.upper()} {case.path}"
     if operation in (COMPLETE, POSE) and isinstance(case.body, dict):
         fields = {k: v for k, v in case.body.items() if k not in ("gray", "sparse", "returns")}
-        if operation == POSE:
-            fields = _pose_fields(fields)
+        fields = _pose_fields(fields) if operation == POSE else _fitting_intrinsics(fields)
         as_returns = "returns" in case.body and "sparse" not in case.body
         frame = fuzz_frame(fields.get("depth_scale"), as_returns and "depth_scale" not in fields)
         kwargs["files"] = {name: (f"{name}.bin", data) for name, data in frame.items()}
         kwargs["data"] = {k: v if isinstance(v, str) else json.dumps(v) for k, v in fields.items()}
     elif operation == V2_INFER and isinstance(case.body, dict):
         body = {**case.body, "inputs": fuzz_inputs(binary=False)[0]}
+        if isinstance(body.get("parameters"), dict):
+            body["parameters"] = _fitting_intrinsics(body["parameters"])
         if body.get("outputs") is not None:
             once = {output["name"]: output for output in reversed(body["outputs"])}
             body["outputs"] = list(reversed(once.values())) or None
@@ -126,16 +130,34 @@ def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
         header = json.dumps({"inputs": inputs}).encode()
         kwargs["data"] = header + binary
         # (the transport takes headers from the case only; an undeclared header keeps it valid)
-        case.headers = {**(case.headers or {}), "Inference-Header-Content-Length": str(len(header))}
+        case.headers = {**(case.headers or {}), HEADER_LENGTH: str(len(header))}
+
+
+INTRINSICS = ("fx", "fy", "cx", "cy")
+
+
+def _fitting_intrinsics(fields: dict) -> dict:
+    """A valid case's fields without its intrinsics when they cannot describe the fuzzed
+    64 x 64 frame (``sdcnet.camera.check_intrinsics``, the model's camera for those not
+    given): the schema states the bounds that do not depend on the frame's size only, so a
+    focal length of 1e-300 px or one pixel is schema-valid, and rightly refused (422)."""
+    default = PAPER_CAMERA.intrinsics().scaled(64, 64)
+    given = {k: fields.get(k, getattr(default, k)) for k in INTRINSICS}
+    try:
+        check_intrinsics(Intrinsics(**{k: float(v) for k, v in given.items()}, width=64, height=64))
+    except (IntrinsicsError, TypeError, ValueError):
+        return {k: v for k, v in fields.items() if k not in INTRINSICS}
+    return fields
 
 
 def _pose_fields(fields: dict) -> dict:
     """A valid ``POST /pose`` case's other fields: the known target, a pose as ``init`` (when
-    one is sent), and none of the intrinsics or ``depth_scale``. The schema cannot say that a
-    focal length of 1e-300 px, or a depth scale of 1e-6 m per unit on depths of 100 m, turn
-    the frame into a cloud light-years wide or millimetres small, which ``/pose`` refuses
-    (422) where ``/complete`` completes it."""
-    dropped = ("fx", "fy", "cx", "cy", "depth_scale")
+    one is sent), and none of the intrinsics, ``depth_scale`` or ``max_sigma``. The schema
+    cannot say that a focal length of 1e-300 px, or a depth scale of 1e-6 m per unit on depths
+    of 100 m, turn the frame into a cloud light-years wide or millimetres small, nor that a
+    max_sigma of 1e-300 m leaves no point in it, which ``/pose`` refuses (422) where
+    ``/complete`` completes it."""
+    dropped = ("fx", "fy", "cx", "cy", "depth_scale", "max_sigma")
     kept = {k: v for k, v in fields.items() if k not in dropped}
     kept["target"] = FUZZ_TARGET
     if "init" in kept:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sdcnet.runtime import INPUTS, OUTPUTS, model_metadata
+from sdcnet.runtime import INPUTS, OUTPUTS, metadata_props
 
 TINY_VERSION = "test-tiny"
 RANDOM_VERSION = "test-random"
@@ -22,15 +22,18 @@ def graph_model(
     initializers: tuple = (),
 ):
     """An ONNX model (opset 17) of ``nodes`` on float tensors (B, 1, H, W) named ``inputs``
-    and ``outputs``, carrying ``metadata``. Needs the ``onnx`` package."""
+    and ``outputs`` (``focal_px``: (B, 1, 1, 1)), carrying ``metadata``. Needs the ``onnx``
+    package."""
     from onnx import TensorProto, helper
 
-    shape = ["batch", 1, "height", "width"]
+    def shape(name: str) -> list:
+        return ["batch", 1, 1, 1] if name == "focal_px" else ["batch", 1, "height", "width"]
+
     graph = helper.make_graph(
         nodes,
         "sdcnet-test",
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in inputs],
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in outputs],
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape(n)) for n in inputs],
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape(n)) for n in outputs],
         initializer=list(initializers),
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
@@ -46,7 +49,8 @@ def tiny_model(base: Path, stride: int = 64) -> Path:
 
     - ``depth``: the sparse map under a ``TINY_FILL_PX`` x ``TINY_FILL_PX`` max filter (two
       1-D max pools): each pixel takes the farthest LIDAR return around it, 0 far from any;
-    - ``foreground``: the gray image itself (a pixel brighter than mid-gray is spacecraft).
+    - ``foreground``: the gray image itself (a pixel brighter than mid-gray is spacecraft);
+    - ``sigma``: a tenth of the gray image, metres.
 
     Written once; needs the ``onnx`` package."""
     import onnx
@@ -72,8 +76,10 @@ def tiny_model(base: Path, stride: int = 64) -> Path:
             pads=[0, half, 0, half],
         ),
         helper.make_node("Identity", ["gray"], ["foreground"]),
+        helper.make_node("Constant", [], ["tenth"], value_float=0.1),
+        helper.make_node("Mul", ["gray", "tenth"], ["sigma"]),
     ]
-    model = graph_model(nodes, metadata=model_metadata(TINY_VERSION, stride))
+    model = graph_model(nodes, metadata=metadata_props(TINY_VERSION, stride))
     onnx.checker.check_model(model, full_check=True)
     base.mkdir(parents=True, exist_ok=True)
     onnx.save(model, path)
@@ -86,7 +92,7 @@ def random_model(base: Path) -> Path:
     the whole crop foreground: a non-empty mask and cloud. Needs the ``train`` extra."""
     import torch
 
-    from sdcnet.export.onnx_export import export_onnx, model_metadata
+    from sdcnet.export.onnx_export import export_onnx, network_metadata_props
     from sdcnet.training.model.sdcnet import SDCNet
 
     path = base / "sdcnet-random.onnx"
@@ -95,5 +101,5 @@ def random_model(base: Path) -> Path:
         model = SDCNet().eval()
         with torch.no_grad():
             model.fsnet.head.bias += 3.0
-        export_onnx(model, path, model_metadata(model, RANDOM_VERSION))
+        export_onnx(model, path, network_metadata_props(model, RANDOM_VERSION))
     return path

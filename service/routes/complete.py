@@ -3,128 +3,20 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Annotated, Any
+from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Form, Query, Request, UploadFile
-from fastapi.dependencies.models import Dependant
-from fastapi.responses import Response
-from pydantic import WithJsonSchema
+from fastapi import APIRouter, Depends, Query, Request
 from starlette.concurrency import run_in_threadpool
 
-from sdcnet.service.decode import CompletionRequest
-from sdcnet.service.deps import EngineDep, SettingsDep
-from sdcnet.service.encode import MEDIA_TYPES
-from sdcnet.service.errors import ERROR_RESPONSES, ApiError
+from sdcnet.service.admission import TAKES_SLOT
+from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, input_limits
+from sdcnet.service.errors import ERROR_RESPONSES
+from sdcnet.service.forms import FrameForm, strict_form
 from sdcnet.service.inference import SERVER_TIMING_HEADER, answer
 from sdcnet.service.schemas import CompletionResponse, ResponseFormat
+from sdcnet.service.spool import SpooledResponse
 
 router = APIRouter(tags=["inference"])
-
-
-def _form_fields(dependant: Dependant) -> set[str]:
-    """Names of the form fields an endpoint takes, its dependencies' included."""
-    own = {field.alias for field in dependant.body_params}
-    return own.union(*(_form_fields(sub) for sub in dependant.dependencies))
-
-
-async def strict_form(request: Request) -> None:
-    """FastAPI dependency: 422 for a form field the endpoint does not take or one sent twice.
-
-    FastAPI would silently ignore the first (a typo such as ``outlier_remova``) and keep only
-    the last of the second (two ``gray`` files): both are a client's mistake worth naming.
-    The form is the one FastAPI already parsed (Starlette caches it).
-    """
-    known = _form_fields(request.scope["route"].dependant)
-    names = [name for name, _ in (await request.form()).multi_items()]
-    unknown = sorted(set(names) - known)
-    repeated = sorted({name for name in names if names.count(name) > 1} & known)
-    problems = [f"unknown form field {name!r}" for name in unknown]
-    problems += [f"form field {name!r} given {names.count(name)} times" for name in repeated]
-    if problems:
-        raise ApiError(
-            422, "invalid_request", "; ".join(problems) + f"; the fields are {sorted(known)}"
-        )
-
-
-_JSON_SCHEMA_BOUNDS = {"gt": "exclusiveMinimum", "ge": "minimum", "le": "maximum"}
-
-
-def optional_number(description: str, **bounds: float) -> Any:
-    """The type of an optional, finite numeric form field within ``bounds`` (gt, ge, le).
-
-    A form leaves such a field out, it cannot send null: the OpenAPI schema says a plain
-    number with its bounds (not "number or null"), so that clients and fuzzers generated from
-    the schema never send the string "null".
-    """
-    schema = {"type": "number", **{_JSON_SCHEMA_BOUNDS[k]: v for k, v in bounds.items()}}
-    return Annotated[
-        float | None,
-        Form(allow_inf_nan=False, description=description, **bounds),
-        WithJsonSchema(schema),
-    ]
-
-
-def optional_file(description: str) -> Any:
-    """The type of an optional file field: the OpenAPI schema says a file (not "file or
-    null": a form cannot send null), as ``optional_number`` does for numbers."""
-    return Annotated[
-        UploadFile | None,
-        File(description=description),
-        WithJsonSchema({"type": "string", "format": "binary", "description": description}),
-    ]
-
-
-_DEFAULT_K = "default: the model's, scaled to the image size"
-FocalLength = optional_number(f"pixels; {_DEFAULT_K}", gt=0)
-PrincipalPoint = optional_number(f"pixels; {_DEFAULT_K}")
-#: Metres per unit of a 16-bit PNG sparse map, bounded so that every depth stays finite and
-#: non-zero in float32 (65535 units x 1000 m; 1 unit x 1 micrometre).
-DepthScale = optional_number("metres per unit of a 16-bit PNG sparse", ge=1e-6, le=1e3)
-GrayFile = Annotated[
-    UploadFile,
-    File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
-]
-SparseFile = optional_file(
-    "the LIDAR returns as a dense map: .npy of float32/float64 metres (H x W, 0 = no "
-    "return), or a 16-bit PNG with depth_scale. Send this or returns"
-)
-ReturnsFile = optional_file(
-    "the LIDAR returns as a list, one per row: row, column (whole pixel indices) and Z "
-    "(metres > 0); a .npy of (N, 3) float32/float64 (exact, 12 bytes a return) or a CSV "
-    "text file with the header row,col,z_m. Where several fall on one pixel the nearest "
-    "wins. Send this or sparse"
-)
-
-
-async def frame_form(
-    gray: GrayFile,
-    sparse: SparseFile = None,
-    returns: ReturnsFile = None,
-    depth_scale: DepthScale = None,
-    fx: FocalLength = None,
-    fy: FocalLength = None,
-    cx: PrincipalPoint = None,
-    cy: PrincipalPoint = None,
-    outlier_removal: Annotated[
-        bool, Form(description="statistical outlier removal on the point cloud (Fig. 7)")
-    ] = False,
-) -> CompletionRequest:
-    """FastAPI dependency: one frame's form fields (``POST /complete`` and ``POST /pose``),
-    the uploaded files read, as ``decode_form`` takes them."""
-    return CompletionRequest(
-        gray=await gray.read(),
-        sparse=None if sparse is None else await sparse.read(),
-        returns=None if returns is None else await returns.read(),
-        depth_scale=depth_scale,
-        fx=fx,
-        fy=fy,
-        cx=cx,
-        cy=cy,
-        outlier_removal=outlier_removal,
-    )
-
-
-FrameForm = Annotated[CompletionRequest, Depends(frame_form)]
 
 
 @router.post(
@@ -133,34 +25,36 @@ FrameForm = Annotated[CompletionRequest, Depends(frame_form)]
     responses={
         200: {
             "description": "format=json: this document; format=npz: a zip of depth.npy, "
-            "mask.npy, points.npy and meta.json; format=ply: the point cloud as binary PLY",
+            "mask.npy, points.npy, sigma.npy and meta.json; format=ply: the point cloud as "
+            "binary PLY, each vertex x, y, z and sigma (float32, metres)",
             "content": {"application/octet-stream": {}},
             "headers": SERVER_TIMING_HEADER,
         },
         **ERROR_RESPONSES,
     },
-    dependencies=[Depends(strict_form)],
+    dependencies=[TAKES_SLOT, Depends(strict_form)],
 )
 async def complete(
     request: Request,
     engine: EngineDep,
     settings: SettingsDep,
+    camera: CameraDep,
     frame: FrameForm,
     response_format: Annotated[
         ResponseFormat, Query(alias="format", description="json, npz or ply")
     ] = ResponseFormat.json,
-) -> Response:
-    """Complete one frame: dense depth (metres, 0 off the mask), mask and point cloud.
+) -> SpooledResponse:
+    """Complete one frame: dense depth (metres, 0 off the mask), its 1-sigma uncertainty
+    `sigma` (metres, 0 off the mask), mask and point cloud (without the points whose sigma is
+    above `max_sigma`, when given).
 
     The LIDAR returns come as a dense map (`sparse`) or as a list (`returns`: a few hundred
     returns in a few kilobytes instead of a 4 MiB map for a 1024 x 1024 frame; the answers
-    are identical). Intrinsics (pixels) not given are the model's, scaled to the image size.
+    are identical). Intrinsics (pixels) not given are the camera's (`sdc-serve --camera`; the
+    frame is then undistorted if it has lens distortion), else the model's, scaled to the
+    image size.
     """
     req = replace(frame, format=response_format)
-    result = await run_in_threadpool(answer, engine, req, settings.max_pixels)
+    result = await run_in_threadpool(answer, engine, req, input_limits(settings), camera)
     request.app.state.metrics.observe_phases(result.timer.seconds)
-    headers = {"Server-Timing": result.timer.server_timing()}
-    if response_format is not ResponseFormat.json:
-        name = f"sdcnet.{response_format.value}"
-        headers["Content-Disposition"] = f'attachment; filename="{name}"'
-    return Response(result.body, media_type=MEDIA_TYPES[response_format], headers=headers)
+    return result.response()

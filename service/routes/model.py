@@ -7,12 +7,14 @@ from fastapi import APIRouter
 
 from sdcnet import __version__
 from sdcnet.service import v2
-from sdcnet.service.deps import MODEL_NAME, EngineDep, SettingsDep, TargetsDep
+from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep, TargetsDep
 from sdcnet.service.errors import ERROR_RESPONSES, V2_ERROR_RESPONSES
 from sdcnet.service.schemas import (
+    CameraInfo,
     CameraIntrinsics,
     ModelMetadata,
     ServerMetadata,
+    SizedIntrinsics,
     TargetInfo,
     TensorMetadata,
 )
@@ -26,6 +28,7 @@ _DESCRIPTIONS = {
     "depth": "camera-frame Z, metres, 0 outside the mask",
     "mask": "1 = spacecraft",
     "points": "the mask's pixels back-projected: camera frame (x right, y down, z forward), m",
+    "sigma": "the depth's 1-sigma uncertainty, metres, 0 outside the mask",
 }
 
 
@@ -55,30 +58,35 @@ async def server_metadata() -> ServerMetadata:
     responses={503: V2_ERROR_RESPONSES[503]},
 )
 async def model_metadata(
-    engine: EngineDep, settings: SettingsDep, targets: TargetsDep
+    engine: EngineDep, settings: SettingsDep, targets: TargetsDep, camera: CameraDep
 ) -> ModelMetadata:
-    """What the service serves: the v2 inference tensors, the model's version, default
-    intrinsics, metrics, the limits, and the known targets of ``POST /pose``."""
+    """What the service serves: the v2 inference tensors, the model's version, the camera
+    and the default intrinsics, metrics, the limits, and the known targets of ``POST /pose``."""
     model = engine.model
     info = model.info
     K = info.intrinsics
+    default = K if camera is None else camera.calibration.intrinsics
     return ModelMetadata(
         name=MODEL_NAME,
         versions=[info.version],
-        platform="onnxruntime_onnx",
+        platform=model.platform,
         inputs=_tensors(v2.INPUTS),
         outputs=_tensors(v2.OUTPUTS),
         version=info.version,
         provider=model.provider,
         threads=model.threads,
         stride=info.stride,
-        training_size=info.training_size,
+        work_pixels=info.work_pixels,
         intrinsics=CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
+        default_intrinsics=SizedIntrinsics(**default.as_dict()),
+        camera=None if camera is None else CameraInfo(**camera.describe()),
         metrics=info.metrics,
         limits={
             "max_pixels": settings.max_pixels,
+            "max_returns": settings.max_returns,
             "max_upload_bytes": settings.max_upload_bytes,
             "max_in_flight": settings.max_in_flight,
+            "max_requests": settings.max_requests,
         },
         targets=[TargetInfo(**target.describe()) for target in targets.values()],
     )

@@ -7,16 +7,17 @@ from typing import Annotated
 
 import numpy as np
 from fastapi import APIRouter, Depends, Form, Request
-from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from sdcnet.service.deps import EngineDep, SettingsDep, TargetsDep
+from sdcnet.service.admission import TAKES_SLOT
+from sdcnet.service.deps import CameraDep, EngineDep, SettingsDep, TargetsDep, input_limits
 from sdcnet.service.errors import ERROR_RESPONSES
+from sdcnet.service.forms import FrameForm, strict_form
 from sdcnet.service.inference import SERVER_TIMING_HEADER
 from sdcnet.service.pose import POSE_PHASES, PoseRequest, answer_pose, find_target
 from sdcnet.service.pose_schemas import PoseResponse, TargetGeometry
-from sdcnet.service.routes.complete import FrameForm, strict_form
 from sdcnet.service.schemas import ErrorBody
+from sdcnet.service.spool import SpooledResponse
 
 router = APIRouter(tags=["pose"])
 POSE_ERRORS: dict[int | str, dict] = {
@@ -39,19 +40,22 @@ POSE_ERRORS: dict[int | str, dict] = {
             "headers": {
                 "Server-Timing": {
                     **SERVER_TIMING_HEADER["Server-Timing"],
-                    "description": "milliseconds per phase: " + ", ".join(POSE_PHASES),
+                    "description": "milliseconds per phase: "
+                    + ", ".join(POSE_PHASES)
+                    + ", and wait (for an in-flight place, before decode)",
                 }
             },
         },
         **POSE_ERRORS,
     },
-    dependencies=[Depends(strict_form)],
+    dependencies=[TAKES_SLOT, Depends(strict_form)],
 )
 async def pose(
     request: Request,
     engine: EngineDep,
     settings: SettingsDep,
     targets: TargetsDep,
+    camera: CameraDep,
     frame: FrameForm,
     target: Annotated[str, Form(description="a known target's name (GET /model lists them)")],
     init: Annotated[
@@ -61,20 +65,22 @@ async def pose(
             '3} or {"quaternion_wxyz": 4, "t": 3}; without it the pose is found from scratch'
         ),
     ] = None,
-) -> JSONResponse:
+) -> SpooledResponse:
     """The pose of a known target, p_camera = R p_target + t (camera x right, y down,
     z forward; metres), from one frame: completed as by `POST /complete`, then registered.
 
     Without `init` the pose is searched from scratch; with it, refined from it (tracking at
     the LIDAR's 10 Hz), falling back to the search when the refinement explains the frame
-    poorly. A symmetric target's answer says `ambiguous` and lists the alternatives.
+    poorly; the answer stays near `init` unless the frame clearly contradicts it. Every
+    answer carries a `verdict` (reliable, ambiguous, unreliable) and its `reasons`; a
+    symmetric target's answer says `ambiguous` and lists the alternatives.
     """
     req = PoseRequest(frame=frame, target=target, init=init)
-    answer, timer = await run_in_threadpool(answer_pose, engine, targets, req, settings.max_pixels)
-    request.app.state.metrics.observe_phases(timer.seconds)
-    return JSONResponse(
-        answer.model_dump(), headers={"Server-Timing": timer.server_timing(POSE_PHASES)}
+    answer = await run_in_threadpool(
+        answer_pose, engine, targets, req, input_limits(settings), camera
     )
+    request.app.state.metrics.observe_phases(answer.timer.seconds)
+    return answer.response()
 
 
 #: Surface samples ``GET /targets/{name}`` sends, at most: enough to draw the target, ~100 kB.

@@ -10,13 +10,15 @@ without a copy, and its JSON header is validated by ``sdcnet.service.v2.Inferenc
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
-from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.service import v2
-from sdcnet.service.deps import MODEL_NAME, EngineDep, SettingsDep
+from sdcnet.service.admission import TAKES_SLOT
+from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep, input_limits
 from sdcnet.service.errors import V2_ERROR_RESPONSES, ApiError
 from sdcnet.service.inference import SERVER_TIMING_HEADER
+from sdcnet.service.spool import SpooledResponse
 
 router = APIRouter(tags=["open inference protocol v2"])
 
@@ -39,7 +41,7 @@ _REQUEST_BODY = {
     },
 }
 _HEADER_LENGTH_DOC = {
-    v2.HEADER_LENGTH: {
+    HEADER_LENGTH: {
         "description": "length of the JSON header in bytes, when binary data follows it",
         "schema": {"type": "integer", "minimum": 1},
     }
@@ -59,14 +61,19 @@ _HEADER_LENGTH_DOC = {
         **V2_ERROR_RESPONSES,
     },
     openapi_extra={"requestBody": _REQUEST_BODY},
+    dependencies=[TAKES_SLOT],
 )
-async def infer(request: Request, engine: EngineDep, settings: SettingsDep) -> Response:
+async def infer(
+    request: Request, engine: EngineDep, settings: SettingsDep, camera: CameraDep
+) -> SpooledResponse:
     """Complete one frame. Inputs: `gray` (UINT8 or UINT16, [H, W]) and `sparse` (FP32,
     [H, W], metres, 0 = no return) or `returns` (FP32, [N, 3]: row, column, Z metres).
-    Parameters: `fx`, `fy`, `cx`, `cy` (pixels; default: the model's, scaled to the image),
-    `outlier_removal`. Outputs: `depth` (FP32, [H, W], metres, 0 off the mask), `mask` (UINT8,
-    [H, W]), `points` (FP32, [N, 3], camera frame, metres); the summary of `POST /complete` is
-    in the answer's parameters. Errors: `{"error": "..."}`, the code in `Sdcnet-Error-Code`.
+    Parameters: `fx`, `fy`, `cx`, `cy` (pixels; default: the camera's, else the model's),
+    `outlier_removal`, `max_sigma` (metres: points of a larger sigma leave the cloud). Outputs:
+    `depth` (FP32, [H, W], metres, 0 off the mask), `mask` (UINT8, [H, W]), `points` (FP32,
+    [N, 3], camera frame, metres), `sigma` (FP32, [H, W], the depth's 1-sigma uncertainty,
+    metres, 0 off the mask); the summary of `POST /complete` is in the answer's parameters.
+    Errors: `{"error": "..."}`, the code in `Sdcnet-Error-Code`.
     """
     encoding = request.headers.get("content-encoding", "identity").lower()
     if encoding != "identity":
@@ -75,9 +82,12 @@ async def infer(request: Request, engine: EngineDep, settings: SettingsDep) -> R
             "unsupported_media_type",
             f"Content-Encoding {encoding} is not supported: send the body uncompressed",
         )
-    body = await request.body()
-    header_length = request.headers.get(v2.HEADER_LENGTH)
-    answer = await run_in_threadpool(v2.answer, engine, body, header_length, settings.max_pixels)
+    body = bytearray()  # grown in place: Request.body() holds the chunks and their join
+    async for chunk in request.stream():
+        body += chunk
+    header_length = request.headers.get(HEADER_LENGTH)
+    answer = await run_in_threadpool(
+        v2.answer, engine, body, header_length, input_limits(settings), camera
+    )
     request.app.state.metrics.observe_phases(answer.timer.seconds)
-    headers = {"Server-Timing": answer.timer.server_timing(), **answer.headers}
-    return Response(answer.body, media_type=answer.media_type, headers=headers)
+    return answer.response()

@@ -16,7 +16,8 @@ import numpy as np
 from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.returns import returns_from_dense, write_returns_csv
-from sdcnet.training.data.generate import GenerateConfig, build_model, generate, make_sample
+from sdcnet.training.data.conditions import WORLDS
+from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, generate, make_sample
 from sdcnet.training.data.preview import preview
 from sdcnet.training.data.scene import SceneConfig
 from sdcnet.training.data.sequence import TRAJECTORIES, SequenceConfig, write_sequences
@@ -58,6 +59,8 @@ def _config(args: argparse.Namespace) -> GenerateConfig:
         split=args.split,
         meshes=meshes,
         mesh_split=args.mesh_split,
+        world=args.world,
+        only_splits=tuple(args.only_splits),
     )
 
 
@@ -89,7 +92,7 @@ def cmd_example(args: argparse.Namespace) -> int:
     config = GenerateConfig(
         models=0, views=1, seed=args.seed, split=(0, 0, 0), scene=scene, meshes=(meshes[args.name],)
     )
-    sample = make_sample(config, build_model(config, 0), 0, 0, "example")
+    sample = make_sample(config, build_spacecraft(config, 0), 0, 0, "example")
     args.out.mkdir(parents=True, exist_ok=True)
     gray, returns = args.out / f"{args.name}.png", args.out / f"{args.name}.returns.csv"
     if not cv2.imwrite(str(gray), sample.gray, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
@@ -112,10 +115,12 @@ def cmd_preview(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     """Seconds per sample on one core and the LIDAR density, over a few samples."""
-    config = GenerateConfig(models=args.models, views=args.views, size=args.size, seed=args.seed)
+    config = GenerateConfig(
+        models=args.models, views=args.views, size=args.size, seed=args.seed, world=args.world
+    )
     times, density, returns = [], [], []
     for m in range(config.models):
-        model = build_model(config, m)
+        model = build_spacecraft(config, m)
         for v in range(config.views):
             t0 = time.perf_counter()
             s = make_sample(config, model, m, v, "bench")
@@ -153,7 +158,7 @@ def sequence_models(args: argparse.Namespace) -> dict[int, tuple[SpacecraftModel
             raise ValueError(f"{args.dataset} has no procedural model in split {args.split!r}")
         step = max(1, len(ids) // args.limit) if args.limit else 1
         for m in ids[::step][: args.limit or None]:
-            models[m] = (build_model(config, m), args.split)
+            models[m] = (build_spacecraft(config, m), args.split)
     if args.meshes:
         for k, entry in enumerate(read_mesh_folder(args.meshes)):
             mesh = load_mesh_file(entry.path, entry.longest_m, entry.scale, seed=args.seed)
@@ -217,6 +222,21 @@ def parser() -> argparse.ArgumentParser:
         "--mesh-scale", type=float, default=1.0, help="metres per mesh unit (no manifest)"
     )
     g.add_argument("--mesh-split", default="real", help="split name of the folder's meshes")
+    g.add_argument(
+        "--world",
+        default="paper",
+        choices=WORLDS,
+        help="how each frame's camera, sensor, LIDAR, range and sky are drawn: paper (Tables "
+        "1-2, 50-250 m, stars), any (every factor), mixed (a quarter paper, the rest any) or "
+        "one robustness condition (default paper)",
+    )
+    g.add_argument(
+        "--only-splits",
+        nargs="*",
+        default=[],
+        metavar="SPLIT",
+        help="render only the models of these splits, e.g. test real (default: all)",
+    )
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)
 
@@ -259,6 +279,7 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--views", type=int, default=4)
     b.add_argument("--size", type=int, default=1024)
     b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--world", default="paper", choices=WORLDS, help="as for generate")
     b.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="for the projection")
     b.set_defaults(func=cmd_bench)
     return p

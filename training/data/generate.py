@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +24,13 @@ from sdcnet.dataset_format import (
     write_sample,
 )
 from sdcnet.meshes import MeshEntry
-from sdcnet.training.data.lidar import scan
+from sdcnet.training.data.background import (
+    render_background,
+    sample_background,
+    sample_sun_near_view,
+)
+from sdcnet.training.data.conditions import Conditions, draw_conditions, world_for_frame
+from sdcnet.training.data.lidar import Lidar, scan_lidar
 from sdcnet.training.data.render import PosedModel, render_camera
 from sdcnet.training.data.scene import Scene, SceneConfig, sample_scene
 from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file, procedural_spacecraft
@@ -42,12 +48,15 @@ class GenerateConfig:
     size: int = 1024
     seed: int = 0
     split: tuple[int, int, int] | None = None  # models per split; default: paper ratios
-    scene: SceneConfig = field(default_factory=SceneConfig)
+    scene: SceneConfig | None = None  # None: the world's ranges
     meshes: tuple[MeshEntry, ...] = ()  # users' meshes, appended after the procedural models
     mesh_split: str = "real"
+    world: str = "paper"  # how cameras, LIDARs, ranges and skies are drawn (conditions.WORLDS)
+    only_splits: tuple[str, ...] = ()  # render only the models of these splits (empty: all)
 
     @property
     def intrinsics(self) -> Intrinsics:
+        """The paper camera at ``size``: every frame's camera in the paper's world."""
         return PAPER_CAMERA.intrinsics().scaled(self.size, self.size)
 
     def split_counts(self) -> tuple[int, int, int]:
@@ -63,6 +72,10 @@ class GenerateConfig:
             f"sdc-data generate --models {self.models} --views {self.views}",
             f"--size {self.size} --seed {self.seed}",
         ]
+        if self.world != "paper":
+            parts.append(f"--world {self.world}")
+        if self.only_splits:
+            parts.append("--only-splits " + " ".join(self.only_splits))
         if self.split is not None:
             parts.append("--split " + ",".join(map(str, self.split)))
         return " ".join(parts)
@@ -88,7 +101,9 @@ def model_splits(config: GenerateConfig) -> dict[int, str]:
     return splits
 
 
-def build_model(config: GenerateConfig, model_id: int) -> SpacecraftModel:
+def build_spacecraft(config: GenerateConfig, model_id: int) -> SpacecraftModel:
+    """Spacecraft ``model_id`` of the dataset ``config`` describes: procedural below
+    ``config.models``, else ``config.meshes``' file of that index (metres)."""
     if model_id < config.models:
         return procedural_spacecraft(config.seed, model_id)
     entry = config.meshes[model_id - config.models]
@@ -98,13 +113,20 @@ def build_model(config: GenerateConfig, model_id: int) -> SpacecraftModel:
 
 
 def render_scene(
-    model: SpacecraftModel, scene: Scene, K: Intrinsics, seeds: tuple[int, ...]
+    model: SpacecraftModel, scene: Scene, conditions: Conditions, seeds: tuple[int, ...]
 ) -> Sample:
-    """Camera frame and LIDAR scan of ``model`` placed as ``scene``; the noise is drawn from
-    ``seeds`` (+ 2 for the camera, + 3 for the LIDAR). Meta: what the frame shows."""
+    """Camera frame and LIDAR scan of ``model`` placed as ``scene`` under ``conditions``; the
+    noise is drawn from ``seeds`` (+ 2 for the camera, + 3 for the LIDAR, + 5 and + 6 for the
+    background). Meta: what the frame shows and every factor it was drawn with."""
+    K = conditions.intrinsics
     posed = PosedModel.place(model, scene)
-    frame = render_camera(posed, K, np.random.default_rng([*seeds, 2]))
-    sparse = scan(posed.caster, PAPER_LIDAR, K, np.random.default_rng([*seeds, 3]))
+    sky = sample_background(np.random.default_rng([*seeds, 5]), K, scene.sun, conditions.background)
+    background = render_background(sky, K, scene.sun, np.random.default_rng([*seeds, 6]))
+    frame = render_camera(
+        posed, K, np.random.default_rng([*seeds, 2]), background, conditions.sensor
+    )
+    lidar = within_range(conditions.lidar, scene, model)
+    sparse = scan_lidar(posed, lidar, K, np.random.default_rng([*seeds, 3]))
     meta = {
         "model_name": model.name,
         "intrinsics": K.as_dict(),
@@ -112,16 +134,36 @@ def render_scene(
         "foreground_px": int(np.count_nonzero(frame.depth)),
         "exposure": round(frame.exposure, 5),
         **scene.metadata(),
+        **replace(conditions, lidar=lidar).metadata(),
+        "background": sky.metadata(),
     }
     return Sample(frame.gray, sparse, frame.depth, meta)
+
+
+def within_range(lidar: Lidar, scene: Scene, model: SpacecraftModel) -> Lidar:
+    """``lidar`` with a maximum range that reaches the whole spacecraft: a frame without
+    returns teaches nothing (the paper's LIDAR, 280 m, already covers its 250 m scenes)."""
+    reach = scene.distance_m + model.radius_m
+    return lidar if lidar.max_range_m >= reach else replace(lidar, max_range_m=round(reach + 1))
+
+
+def frame_conditions(config: GenerateConfig, model_id: int, view: int) -> Conditions:
+    """The conditions of one frame: drawn from the dataset's world, seeded by the frame."""
+    rng = np.random.default_rng([config.seed, model_id, view, 4])
+    conditions = draw_conditions(world_for_frame(config.world, rng), rng, config.size)
+    return conditions if config.scene is None else replace(conditions, scene=config.scene)
 
 
 def make_sample(
     config: GenerateConfig, model: SpacecraftModel, model_id: int, view: int, split: str
 ) -> Sample:
     """Render one frame; depends only on (config, model, view)."""
-    scene = sample_scene(np.random.default_rng([config.seed, model_id, view, 1]), config.scene)
-    sample = render_scene(model, scene, config.intrinsics, (config.seed, model_id, view))
+    conditions = frame_conditions(config, model_id, view)
+    rng = np.random.default_rng([config.seed, model_id, view, 1])
+    scene = sample_scene(rng, conditions.scene, conditions.intrinsics, model.radius_m)
+    if conditions.background == "sun":  # the Sun in or near the frame, behind the target
+        scene = scene.with_sun(sample_sun_near_view(rng, conditions.intrinsics))
+    sample = render_scene(model, scene, conditions, (config.seed, model_id, view))
     sid = sample_id(model_id, view)
     head = {"id": sid, "file": f"samples/{sid}.npz", "model": model_id}
     sample.meta = {**head, **sample.meta, "split": split, "view": view}
@@ -135,7 +177,7 @@ def _generate_one(args: tuple[GenerateConfig, Path, int, int, str]) -> str:
     config, out, model_id, view, split = args
     if model_id not in _worker_cache:
         _worker_cache.clear()  # tasks come grouped by model: keep one
-        _worker_cache[model_id] = build_model(config, model_id)
+        _worker_cache[model_id] = build_spacecraft(config, model_id)
     sample = make_sample(config, _worker_cache[model_id], model_id, view, split)
     write_sample(out / sample.meta["file"], sample)
     return sample.meta["id"]
@@ -153,10 +195,12 @@ def dataset_info(config: GenerateConfig) -> dict:
         "views": config.views,
         "size": config.size,
         "split_models": dict(zip(SPLITS, counts, strict=True)),
+        "world": config.world,
+        "only_splits": list(config.only_splits),
         "camera": asdict(PAPER_CAMERA),
         "intrinsics": config.intrinsics.as_dict(),
         "lidar": asdict(PAPER_LIDAR),
-        "scene": asdict(config.scene),
+        "scene": asdict(config.scene) if config.scene is not None else None,
         "user_meshes": [entry.describe() for entry in config.meshes],
         "model_split": {str(k): v for k, v in sorted(splits.items())},
     }
@@ -180,8 +224,10 @@ def generate(
         raise ValueError(f"{out} holds a dataset made with other settings; use another --out")
     write_atomically(info_path, text)
     splits = model_splits(config)
-    n_models = config.models + len(config.meshes)
-    tasks = [(config, out, m, v, splits[m]) for m in range(n_models) for v in range(config.views)]
+    chosen = [
+        m for m in sorted(splits) if not config.only_splits or splits[m] in config.only_splits
+    ]
+    tasks = [(config, out, m, v, splits[m]) for m in chosen for v in range(config.views)]
     index, count = shard
     todo = [
         t

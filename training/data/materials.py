@@ -50,30 +50,32 @@ BASE_SHADING: dict[Material, Shading] = {
 #: Albedo jitter per material (factor range); solar arrays range from near-black to the grey of
 #: arrays seen at grazing sun or with bright cover glass.
 ALBEDO_JITTER: dict[Material, tuple[float, float]] = {Material.SOLAR_CELL: (0.6, 3.0)}
+#: Share of spacecraft whose radiators are black (anodised or painted) rather than white.
+DARK_RADIATORS = 0.3
 
 
 def jittered_shading(rng: np.random.Generator) -> list[Shading]:
-    """Per-model variation of every material, indexed by ``Material`` value."""
+    """Per-model variation of every material, indexed by ``Material`` value: albedo, and a
+    specular lobe from dull to mirror-like (tight, strong lobes give the glints that saturate
+    a camera); on some spacecraft black radiators."""
     table = []
     for material in Material:
         base = BASE_SHADING[material]
+        albedo = base.albedo * rng.uniform(*ALBEDO_JITTER.get(material, (0.7, 1.3)))
         table.append(
             replace(
                 base,
-                albedo=float(
-                    np.clip(
-                        base.albedo * rng.uniform(*ALBEDO_JITTER.get(material, (0.7, 1.3))),
-                        0.02,
-                        0.95,
-                    )
-                ),
+                albedo=float(np.clip(albedo, 0.02, 0.95)),
                 grid_albedo=base.grid_albedo * rng.uniform(0.5, 1.5),
-                specular=float(np.clip(base.specular * rng.uniform(0.6, 1.4), 0.0, 0.9)),
-                shininess=float(base.shininess * rng.uniform(0.6, 1.6)),
+                specular=float(np.clip(base.specular * rng.uniform(0.5, 2.0), 0.0, 0.95)),
+                shininess=float(base.shininess * rng.uniform(0.5, 3.0)),
                 crinkle=base.crinkle * rng.uniform(0.6, 1.5),
                 cell_pitch_m=base.cell_pitch_m * rng.uniform(0.6, 1.6),
             )
         )
+    if rng.random() < DARK_RADIATORS:
+        radiator = table[Material.RADIATOR]
+        table[Material.RADIATOR] = replace(radiator, albedo=float(rng.uniform(0.04, 0.15)))
     return table
 
 

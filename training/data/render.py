@@ -2,21 +2,23 @@
 
 One primary ray per pixel centre (only inside the projected bounding box of the mesh),
 Blinn-Phong shading with per-material parameters, hard shadows from the sun by shadow rays,
-a small ambient term, stars on a black sky, a Gaussian PSF, shot and read noise, gamma and
-8-bit quantisation. Depth is camera-frame Z in metres at pixel centres, 0 off the object.
+a small ambient term; in front of a background (stars on a black sky by default, or the Earth,
+the Moon, the Sun's glare: ``background.py``), seen by a camera's optics and electronics
+(``sensor.py``). Depth is camera-frame Z in metres at pixel centres, 0 off the object.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from sdcnet.camera import Intrinsics
+from sdcnet.training.data.background import Background, render_background, sample_background
 from sdcnet.training.data.materials import shading_arrays
 from sdcnet.training.data.raycast import RayCaster
 from sdcnet.training.data.scene import Scene
+from sdcnet.training.data.sensor import Sensor, expose, paper_sensor
 from sdcnet.training.data.spacecraft import SpacecraftModel
 
 SHADOW_OFFSET_M = 0.003  # start shadow rays off the surface, above float32 noise at 280 m
@@ -44,9 +46,9 @@ class PosedModel:
 
 @dataclass
 class CameraFrame:
-    gray: np.ndarray  # (H, W) uint8
+    gray: np.ndarray  # (H, W) uint8 or uint16
     depth: np.ndarray  # (H, W) float32 metres, 0 = background
-    exposure: float
+    exposure: float  # full-scale fraction a lit white surface reaches
 
 
 def _bounding_rect(posed: PosedModel, K: Intrinsics, margin: int = 2) -> tuple[int, int, int, int]:
@@ -134,17 +136,11 @@ def shade(
     return radiance + ambient * albedo
 
 
-def _stars(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
-    """Point stars on a black sky, linear brightness (1 = a fully lit white surface)."""
-    sky = np.zeros((height, width), np.float32)
-    count = rng.poisson(150 * height * width / 1024**2)
-    rows, cols = rng.integers(0, height, count), rng.integers(0, width, count)
-    sky[rows, cols] = rng.exponential(0.08, count) * rng.choice([1, 1, 1, 6], count)
-    return sky
-
-
-def render_camera(posed: PosedModel, K: Intrinsics, rng: np.random.Generator) -> CameraFrame:
-    """Gray image (uint8) and ground-truth depth (float32 m) of a posed spacecraft."""
+def render_radiance(
+    posed: PosedModel, K: Intrinsics, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Linear radiance (H, W) float64 of the spacecraft (0 off it) and its ground-truth depth
+    (H, W) float32 metres (0 = background)."""
     H, W = K.height, K.width
     radiance = np.zeros((H, W), np.float64)
     depth = np.zeros((H, W), np.float32)
@@ -163,16 +159,28 @@ def render_camera(posed: PosedModel, K: Intrinsics, rng: np.random.Generator) ->
         z[hit] = points[:, 2]
         radiance[v0:v1, u0:u1] = values.reshape(vv.shape)
         depth[v0:v1, u0:u1] = z.reshape(vv.shape)
-    stars = _stars(rng, H, W) * (depth == 0)
-    exposure = rng.uniform(0.5, 1.6) / 0.8  # a lit white surface lands at 50-160 % of full scale
-    signal = (radiance + stars) * exposure
-    sigma = rng.uniform(0.3, 1.2) * W / 1024
-    signal = cv2.GaussianBlur(signal, (0, 0), sigma)
-    full_well = rng.uniform(5000, 20000)  # electrons at full scale: sets the shot noise
-    signal = np.clip(signal, 0, None)
-    signal = rng.poisson(signal * full_well) / full_well
-    gamma = rng.choice([2.2, 2.2, 1.8, 1.0])  # sRGB-like, softer, or a linear (raw) camera
-    encoded = np.clip(signal, 0, 1) ** (1 / gamma) * 255
-    encoded += rng.normal(0, rng.uniform(0.3, 2.5), encoded.shape)  # read noise, in DN
-    gray = np.clip(np.round(encoded), 0, 255).astype(np.uint8)
-    return CameraFrame(gray, depth, float(exposure))
+    return radiance, depth
+
+
+def render_camera(
+    posed: PosedModel,
+    K: Intrinsics,
+    rng: np.random.Generator,
+    background: Background | np.ndarray | None = None,
+    sensor: Sensor | None = None,
+) -> CameraFrame:
+    """Gray image (uint8, or uint16 for a 12/16-bit ``sensor``) and ground-truth depth
+    (float32 m) of a posed spacecraft in front of ``background`` (``background.py``, or a
+    radiance image (H, W); default: stars on a black sky), seen by ``sensor`` (default: the
+    paper-like camera). The lens's stray light falls on the spacecraft too."""
+    radiance, depth = render_radiance(posed, K, rng)
+    if background is None:
+        sun = posed.scene.sun
+        background = render_background(sample_background(rng, K, sun, "stars"), K, sun, rng)
+    if not isinstance(background, Background):
+        background = Background(background, None)
+    sensor = sensor or paper_sensor(rng, K.width)
+    scene = np.where(depth > 0, radiance, background.scene)
+    if background.stray is not None:
+        scene += background.stray
+    return CameraFrame(expose(scene, sensor, rng), depth, sensor.exposure)

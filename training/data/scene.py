@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+
+from sdcnet.camera import Intrinsics
 
 
 @dataclass(frozen=True)
@@ -13,8 +15,12 @@ class SceneConfig:
 
     min_distance_m: float = 50.0
     max_distance_m: float = 250.0
-    max_sun_angle_deg: float = 70.0  # between the sun and the viewing direction, at the target
-    max_offset_deg: float = 1.2  # target centre off the optical axis, per axis
+    log_distance: bool = False  # distance log-uniform (docking to far: each octave alike)
+    clearance_m: float = 1.0  # the camera stays this far outside the spacecraft's bounding sphere
+    max_offset_deg: float = 1.2  # target centre off the optical axis, per axis ...
+    offset_of_fov: float = 0.0  # ... or, when > 0, this fraction of each half field of view
+    min_sun_angle_deg: float = 0.0  # between the sun and the viewing direction, at the target
+    max_sun_angle_deg: float = 70.0
 
 
 @dataclass(frozen=True)
@@ -29,6 +35,12 @@ class Scene:
     @property
     def distance_m(self) -> float:
         return float(np.linalg.norm(self.translation))
+
+    def with_sun(self, sun: np.ndarray) -> Scene:
+        """The same scene lit from ``sun`` (unit vector, camera frame)."""
+        to_camera = -self.translation / self.distance_m
+        angle = float(np.degrees(np.arccos(np.clip(np.dot(sun, to_camera), -1.0, 1.0))))
+        return replace(self, sun=np.asarray(sun, float), sun_angle_deg=angle)
 
     def metadata(self) -> dict:
         return {
@@ -60,15 +72,33 @@ def _orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a, np.cross(axis, a)
 
 
-def sample_scene(rng: np.random.Generator, config: SceneConfig = SceneConfig()) -> Scene:
-    """Distance uniform in range, attitude uniform, sun uniform in the allowed cone."""
-    distance = rng.uniform(config.min_distance_m, config.max_distance_m)
-    ox, oy = np.tan(np.radians(rng.uniform(-config.max_offset_deg, config.max_offset_deg, size=2)))
+def sample_scene(
+    rng: np.random.Generator,
+    config: SceneConfig = SceneConfig(),
+    K: Intrinsics | None = None,
+    radius_m: float = 0.0,
+) -> Scene:
+    """Distance in range (never closer than the spacecraft's bounding ``radius_m`` plus the
+    clearance), attitude uniform, target centre off the axis within the configured offset (a
+    fraction of camera ``K``'s field of view when ``offset_of_fov`` is set), sun uniform over
+    the solid angle between the configured angles from the viewing direction."""
+    near = max(config.min_distance_m, radius_m + config.clearance_m)
+    far = max(config.max_distance_m, near)
+    if config.log_distance:
+        distance = float(np.exp(rng.uniform(np.log(near), np.log(far))))
+    else:
+        distance = rng.uniform(near, far)
+    if config.offset_of_fov > 0 and K is not None:
+        half = np.array([(K.width / 2) / K.fx, (K.height / 2) / K.fy])
+        ox, oy = config.offset_of_fov * half * rng.uniform(-1, 1, size=2)
+    else:
+        ox, oy = np.tan(np.radians(rng.uniform(-config.max_offset_deg, config.max_offset_deg, 2)))
     direction = np.array([ox, oy, 1.0])
     translation = distance * direction / np.linalg.norm(direction)
     to_camera = -translation / distance
+    cos_min = np.cos(np.radians(config.min_sun_angle_deg))
     cos_max = np.cos(np.radians(config.max_sun_angle_deg))
-    cos_t = rng.uniform(cos_max, 1.0)  # uniform over the cone's solid angle
+    cos_t = rng.uniform(cos_max, cos_min)  # uniform over the cone's solid angle
     phi = rng.uniform(0, 2 * np.pi)
     a, b = _orthonormal_basis(to_camera)
     sin_t = np.sqrt(1 - cos_t**2)

@@ -31,6 +31,7 @@ from sdcnet import __version__
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR, Intrinsics
 from sdcnet.dataset_format import FORMAT_VERSION, is_complete, read_meta, write_sample
 from sdcnet.rigid import axis_angle
+from sdcnet.training.data.conditions import PAPER, draw_conditions
 from sdcnet.training.data.generate import render_scene
 from sdcnet.training.data.scene import Scene, SceneConfig, sample_scene
 from sdcnet.training.data.spacecraft import SpacecraftModel
@@ -102,9 +103,13 @@ def render_sequence(
     """The samples (``Sample``) of one sequence, in order."""
     index = TRAJECTORIES.index(kind)
     scenes = trajectory(kind, config, np.random.default_rng([config.seed, model_id, index, 0]))
+    # one camera, sensor and LIDAR for the whole sequence: the paper's
+    conditions = draw_conditions(
+        PAPER, np.random.default_rng([config.seed, model_id, index, 4]), config.size
+    )
     for frame, scene in enumerate(scenes):
         sample = render_scene(
-            model, scene, config.intrinsics, (config.seed, model_id, 1000 + index, frame)
+            model, scene, conditions, (config.seed, model_id, 1000 + index, frame)
         )
         R, t = model.file_frame_pose(scene.rotation, scene.translation)
         sid = sequence_id(model_id, kind, frame)

@@ -42,6 +42,11 @@ class SpacecraftModel:
     def longest_m(self) -> float:
         return float(np.max(self.mesh.extents))
 
+    @property
+    def radius_m(self) -> float:
+        """Radius of the sphere about the centre that holds the whole mesh, metres."""
+        return float(np.max(np.linalg.norm(self.mesh.vertices, axis=1)))
+
     def file_frame_pose(
         self, rotation: np.ndarray, translation: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -74,10 +74,13 @@ class DecoderStage(nn.Module):
 
 
 class FDCNet(nn.Module):
-    """(gray (B, Cg, h, w), depth input (B, Cd, h, w)) -> normalised depth (B, Cout, h, w).
+    """(gray (B, Cg, h, w), depth input (B, Cd, h, w)) -> normalised depth (B, Cout, h, w) and
+    its log-scale (B, Cout, h, w): the log of the expected absolute error, in the same unit.
 
     Cg = Cout = 1 for a gray image and a depth at the working resolution, or factor^2 for the
     full-resolution gray image as space-to-depth blocks and sub-pixel depths per working pixel.
+    The scale head reads the last decoder features and the depth input without passing
+    gradients back to them: learning how wrong the depth is never changes the depth.
     """
 
     def __init__(
@@ -105,8 +108,13 @@ class FDCNet(nn.Module):
             Fusion(kind=fusion, channels=widths[i], grid=grid, heads=heads) for i in scales
         )
         self.head = nn.Conv2d(widths[0], out_channels, 1)
+        self.scale_head = nn.Sequential(
+            nn.Conv2d(widths[0] + depth_channels, widths[0], 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(widths[0], out_channels, 1),
+        )
 
-    def forward(self, gray: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+    def forward(self, gray: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         g_skips, s_skips = self.gray_encoder(gray), self.depth_encoder(depth)
         g, s = g_skips[-1], s_skips[-1]
         for k, (gray_stage, depth_stage, fusion) in enumerate(
@@ -115,4 +123,5 @@ class FDCNet(nn.Module):
             level = len(g_skips) - 2 - k
             g = gray_stage(g, g_skips[level])
             s = fusion(depth_stage(s, s_skips[level]), g)
-        return self.head(s)
+        log_scale = self.scale_head(torch.cat([s, depth], 1).detach())
+        return self.head(s), log_scale

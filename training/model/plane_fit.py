@@ -20,6 +20,7 @@ solved in closed form.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import torch
 from torch import nn
@@ -121,7 +122,12 @@ class PlaneFitPrefill(nn.Module):
         self, sparse: torch.Tensor, d_ref: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``d_ref`` (B, 1, 1, 1) metres: subtracted before the fit for float32 precision."""
-        cells = self.cell_channels(sparse, d_ref)
+        fit = self.fit(self.cell_channels(sparse, d_ref), d_ref)
+        return fit.plane, fit.weight
+
+    def fit(self, cells: torch.Tensor, d_ref: torch.Tensor) -> Fit:
+        """The fit at every cell from ``cell_channels``' output (computed once when several
+        windows fit the same returns)."""
         py, px = self.padding
         moments = F.conv2d(
             F.conv2d(cells, self.horizontal, padding=(0, px)), self.vertical, padding=(py, 0)
@@ -139,5 +145,109 @@ class PlaneFitPrefill(nn.Module):
         slope_x = (czx * cyy - czy * cxy) / det
         slope_y = (cxx * czy - cxy * czx) / det
         plane = d_ref + mz - slope_x * mx - slope_y * my  # the plane at the cell's centre
-        weight = torch.where(supported, S0, torch.zeros_like(S0))
-        return torch.where(supported, plane, torch.zeros_like(plane)), weight
+        half_trace = (cxx + cyy) / 2 - self.ridge_px2
+        zero = torch.zeros_like(S0)
+        return Fit(
+            torch.where(supported, plane, zero),
+            torch.where(supported, S0, zero),
+            half_trace - torch.sqrt(((cxx - cyy) / 2) ** 2 + cxy * cxy),
+            torch.where(supported, slope_x, zero),
+            torch.where(supported, slope_y, zero),
+        )
+
+
+class Fit(NamedTuple):
+    """A plane fit at every cell (B, 1, h, w): the plane at the cell's centre (metres, 0 where
+    unsupported), the window weight of its returns (0 = unsupported), their spread (the
+    smaller eigenvalue of the weighted covariance of their positions, px^2: near 0 when they
+    lie on one line, whose slope across it the fit cannot know) and the slopes (metres per
+    full-resolution pixel along columns and rows)."""
+
+    plane: torch.Tensor
+    weight: torch.Tensor
+    spread: torch.Tensor
+    slope_x: torch.Tensor
+    slope_y: torch.Tensor
+
+    def upsampled(self, cell_px: float) -> Fit:
+        """The fit on a grid twice as fine: each cell of ``cell_px`` full-resolution pixels
+        split in four, the plane evaluated at the new cells' centres (a quarter cell off)."""
+        q = cell_px / 4
+        plane = torch.cat(
+            [
+                self.plane + q * (sx * self.slope_x + sy * self.slope_y)
+                for sy in (-1, 1)
+                for sx in (-1, 1)
+            ],
+            1,
+        )  # pixel_shuffle's order: sub-row, then sub-column
+        twice = [F.pixel_shuffle(plane, 2)]
+        for t in self[1:]:
+            twice.append(F.interpolate(t, scale_factor=2, mode="nearest"))
+        return Fit(*twice)
+
+
+class AdaptivePlaneFit(nn.Module):
+    """The plane fit with a window that follows the returns' spacing, pixel by pixel.
+
+    One window cannot serve every LIDAR: half the paper's beam spacing (9 x 6 px) finds no
+    return between the rows of a 16-beam sensor 100 px apart and averages across depth edges
+    where a flash array puts a return on every other pixel. Here the fit runs with isotropic
+    windows ``sigmas_px`` (full-resolution pixels, finest first) and each cell takes the finest
+    whose window weight reaches ``min_support`` (about one return at the window's centre, or
+    several around it) and whose returns spread across the window in every direction (the
+    smaller eigenvalue of their positions' covariance at least (``min_spread`` sigma)^2: a
+    window that sees one scan line cannot tell the slope across it), else the coarsest with
+    any support. Sparse (B, 1, H, W) metres ->
+    plane (B, 1, H/f, W/f) metres (0 = none), weight (B, 1, H/f, W/f) (0 = none) and level
+    (B, 1, H/f, W/f): the chosen window's index over the count of windows (1 = none), which
+    tells the network how far apart the returns are around each cell.
+    """
+
+    def __init__(
+        self,
+        *,
+        factor: int = 4,
+        sigmas_px: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0),
+        min_support: float = 1.0,
+        min_spread: float = 0.25,
+        ridge_px2: float = 0.5,
+        coarse_from: int = 2,
+    ):
+        super().__init__()
+        # The coarsest window is the fallback where no finer one sees returns spread around
+        # it: a few far returns, often on one line, whose slopes would swing the plane by
+        # their float32 rounding. Its ridge grows with its area; the others are well posed.
+        ridges = [ridge_px2] * (len(sigmas_px) - 1)
+        ridges.append(ridge_px2 * (sigmas_px[-1] / sigmas_px[0]) ** 2)
+        # Windows from ``coarse_from`` on are fitted on cells twice as large (a quarter of the
+        # cost; they serve where returns are sparse) and evaluated at the finer cells' centres.
+        self.factors = [factor * (2 if k >= coarse_from else 1) for k in range(len(sigmas_px))]
+        self.fits = nn.ModuleList(
+            PlaneFitPrefill(factor=f, sigma_px=(s, s), ridge_px2=r)
+            for f, s, r in zip(self.factors, sigmas_px, ridges, strict=True)
+        )
+        self.min_support = min_support
+        self.min_spread_px2 = [(min_spread * s) ** 2 for s in sigmas_px]
+
+    def _fit(self, k: int, cells: dict[int, torch.Tensor], d_ref: torch.Tensor) -> Fit:
+        """Window ``k``'s fit on the finest cells."""
+        fit = self.fits[k].fit(cells[self.factors[k]], d_ref)
+        return fit.upsampled(self.factors[k]) if self.factors[k] != self.factors[0] else fit
+
+    def forward(
+        self, sparse: torch.Tensor, d_ref: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        first = {f: self.fits[self.factors.index(f)] for f in set(self.factors)}
+        cells = {f: fit.cell_channels(sparse, d_ref) for f, fit in first.items()}
+        count = len(self.fits)
+        coarsest = self._fit(count - 1, cells, d_ref)
+        plane, weight = coarsest.plane, coarsest.weight
+        level = torch.where(weight > 0, torch.full_like(weight, (count - 1) / count), 1.0)
+        for k in range(count - 2, -1, -1):  # finer windows overwrite where they are supported
+            fit = self._fit(k, cells, d_ref)
+            chosen = (fit.weight >= self.min_support) & (fit.spread >= self.min_spread_px2[k])
+            plane = torch.where(chosen, fit.plane, plane)
+            weight = torch.where(chosen, fit.weight, weight)
+            level = torch.where(chosen, torch.full_like(level, k / count), level)
+        return plane, weight, level

@@ -1,9 +1,12 @@
 """Morphological pre-fill of the sparse LIDAR map (paper sec. III-B), inside the network.
 
-IP-Basic-like: depth is inverted so that near surfaces win every max, then dilated, closed,
-holes filled by a larger dilation and smoothed over valid pixels. Built from max/avg pooling so
-training, the exported ONNX graph and the classical baseline share one implementation.
-Kernel sizes are in pixels of the working resolution, where returns are ~3 x 4.5 px apart.
+Depth is inverted so that near surfaces win every max, then each empty pixel takes the nearest
+return within a growing square: dilations by 3, 5, 9, 17 and 33 working pixels, each filling
+only what the ones before left empty. A fixed set of kernels matched to one beam grid (as
+IP-Basic does) fails on other LIDARs: a flash array needs none of it, a 16-beam sensor's rows
+lie tens of pixels apart. The growing squares reach any spacing up to 16 cells and say how far
+each pixel is from its return (``level``), which the networks use as a cue of their own. Built
+from max pooling, so training and the exported ONNX graph share one implementation.
 """
 
 from __future__ import annotations
@@ -15,17 +18,10 @@ from torch.nn import functional as F
 INVERT_M = 1000.0  # depths are inverted as INVERT_M - d: valid depths stay positive
 
 
-def _dilate(x: torch.Tensor, k: tuple[int, int]) -> torch.Tensor:
-    return F.max_pool2d(x, k, stride=1, padding=(k[0] // 2, k[1] // 2))
-
-
-def _erode(x: torch.Tensor, k: tuple[int, int]) -> torch.Tensor:
-    return -_dilate(-x, k)
-
-
-def _close(x: torch.Tensor, k: tuple[int, int]) -> torch.Tensor:
-    """Morphological closing: bridges gaps narrower than ``k`` without growing the outline."""
-    return _erode(_dilate(x, k), k)
+def _dilate(x: torch.Tensor, k: int) -> torch.Tensor:
+    """Grey dilation by a k x k square as two 1-D max pools (a square's max is separable)."""
+    x = F.max_pool2d(x, (1, k), stride=1, padding=(0, k // 2))
+    return F.max_pool2d(x, (k, 1), stride=1, padding=(k // 2, 0))
 
 
 def near_wins_downsample(depth: torch.Tensor, factor: int) -> torch.Tensor:
@@ -36,33 +32,22 @@ def near_wins_downsample(depth: torch.Tensor, factor: int) -> torch.Tensor:
     return torch.where(pooled > 0, INVERT_M - pooled, torch.zeros_like(pooled))
 
 
-class MorphologicalPrefill(nn.Module):
-    """Sparse depth (B, 1, h, w) metres -> coarse dense depth (B, 1, h, w) metres, 0 = unfilled.
+class NearestReturnFill(nn.Module):
+    """Sparse depth (B, 1, h, w) metres -> filled depth (B, 1, h, w) metres (0 = no return
+    within reach) and level (B, 1, h, w): 0 on a return, k / n where the k-th of the n squares
+    filled the pixel, 1 where none reached it."""
 
-    Kernels are (rows, columns) at the working resolution: the first dilation matches the beam
-    grid (returns ~4.5 rows and ~3 columns apart), closings then bridge what dropouts and
-    grazing surfaces left open, and a blur over valid pixels smooths the steps.
-    """
-
-    def __init__(self, *, dilate=(5, 3), close=(5, 5), holes=(9, 9), blur: int = 3):
+    def __init__(self, *, kernels: tuple[int, ...] = (3, 5, 9, 17, 33)):
         super().__init__()
-        self.dilate, self.close, self.holes, self.blur = (
-            tuple(dilate),
-            tuple(close),
-            tuple(holes),
-            blur,
-        )
+        self.kernels = tuple(kernels)
 
-    def forward(self, sparse: torch.Tensor) -> torch.Tensor:
+    def forward(self, sparse: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         x = torch.where(sparse > 0, INVERT_M - sparse, torch.zeros_like(sparse))
-        x = _dilate(x, self.dilate)
-        x = _close(_close(x, self.close), self.holes)
-        valid = (x > 0).to(x.dtype)
-        total = F.avg_pool2d(
-            x, self.blur, stride=1, padding=self.blur // 2, count_include_pad=False
-        )
-        count = F.avg_pool2d(
-            valid, self.blur, stride=1, padding=self.blur // 2, count_include_pad=False
-        )
-        smooth = total / count.clamp_min(1e-6)
-        return torch.where(valid > 0, INVERT_M - smooth, torch.zeros_like(x))
+        level = torch.where(x > 0, torch.zeros_like(x), torch.ones_like(x))
+        count = len(self.kernels)
+        for k, kernel in enumerate(self.kernels, start=1):
+            grown = _dilate(x, kernel)
+            new = (x <= 0) & (grown > 0)
+            level = torch.where(new, torch.full_like(level, k / count), level)
+            x = torch.where(x > 0, x, grown)
+        return torch.where(x > 0, INVERT_M - x, torch.zeros_like(x)), level

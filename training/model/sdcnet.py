@@ -1,22 +1,28 @@
-"""SDCNet = pre-fill + FSNet + FDCNet, built for a CPU latency budget.
+"""SDCNet = pre-fills + FSNet + FDCNet, for any camera, any LIDAR and any range.
 
-Input: gray (B, 1, H, W) in [0, 1] and sparse LIDAR depth (B, 1, H, W) in metres (0 = none),
-any H x W. Output: dense depth (B, 1, H, W) in metres and foreground probability (B, 1, H, W).
+Inputs: gray (B, 1, H, W) in [0, 1]; sparse LIDAR depth (B, 1, H, W) in metres (0 = none);
+focal_px (B, 1, 1, 1), the focal length in pixels of the grid the two maps are on. Any H x W.
+Outputs: dense depth (B, 1, H, W) in metres, foreground probability (B, 1, H, W) and the
+depth's uncertainty sigma (B, 1, H, W) in metres: the scale of a Laplace distribution of the
+error times ``sigma_per_scale`` (1.14 for a Laplace error: |error| <= sigma for 68 % of
+pixels; ``sdc-train calibrate`` measures it on frames not trained on).
 
-To fit ~100 ms per 1024 x 1024 frame on two cores, the depth networks run at a working
-resolution ``factor`` (4) times below the input and FSNet at ``seg_factor`` (2) times below
-(the sparse map is downsampled keeping the nearest return). Both see the full-resolution gray
-image as space-to-depth blocks and answer at full resolution by depth-to-space, so edges in the
-image reach the mask and the depth at the cost of low-resolution work. The mask gets the finer
-grid because it decides most of the score: an ideal mask pooled to 1/4 and upsampled keeps IOU
-94.7 %, pooled to 1/2 it keeps 97.8 % (mean over 198 training frames).
+The pipeline (``sdcnet.pipeline``) resamples every frame's crop to about the same number of
+working pixels, so the network sees a spacecraft a few hundred pixels across whatever the
+camera and the range. What it must not see is the scale in metres: a panel tilted 45 deg
+changes depth by one pixel footprint (range / focal length) per pixel, at 3 m with a wide
+camera as at 250 m with the paper's. So depths enter relative to the mean return ``d_ref``,
+in units of the metres ``input_span_px`` working pixels span at that range, and the head's
+residual is in units of ``residual_span_px`` footprints; the depth loss is scaled the same
+way (``residual_unit``). The gray image is scaled so that the spacecraft's mean brightness
+at its returns is ``GRAY_TARGET`` (``normalise_gray``): exposure and bit depth vary by
+camera, the spacecraft's look does not.
 
-Depth (``depth_base="plane"``) is a residual on a local plane fitted to the returns around each
-pixel (``plane_fit.py``): what was measured is kept, values between scan lines are interpolated,
-and the network corrects what a plane cannot follow (depth edges, curvature). The first shipped
-model (``depth_base="mean"``) regressed depth relative to the mean LIDAR return of the image on
-the morphological pre-fill, which steps between beam rows.
-Inputs are padded internally to the network's stride and the padding is cut off again.
+For ~100 ms per frame on two cores, the depth networks run at ``factor`` (4) times below the
+input and FSNet at ``seg_factor`` (2) times below; both see the full-resolution gray image as
+space-to-depth blocks and answer at full resolution by depth-to-space. Depth is a residual on
+a local plane fitted to the returns around each pixel (``plane_fit.py``, its window following
+the returns' spacing). Inputs are padded internally to the network's stride and cut back.
 """
 
 from __future__ import annotations
@@ -31,11 +37,17 @@ from sdcnet.training.model.blocks import space_to_depth
 from sdcnet.training.model.fdcnet import FDCNet
 from sdcnet.training.model.fsnet import FSNet
 from sdcnet.training.model.mask_refiner import MaskRefiner
-from sdcnet.training.model.plane_fit import PlaneFitPrefill
-from sdcnet.training.model.prefill import MorphologicalPrefill, near_wins_downsample
+from sdcnet.training.model.plane_fit import AdaptivePlaneFit
+from sdcnet.training.model.prefill import NearestReturnFill, near_wins_downsample
 
 FSNET_INPUTS = ("both", "gray", "sparse")
-DEPTH_BASES = ("plane", "mean")
+DEPTH_INPUTS = 6  # channels of the depth branch's input (``SDCNet._regress``)
+#: The spacecraft's mean gray level at its LIDAR returns after ``normalise_gray``.
+GRAY_TARGET = 0.3
+#: Bounds of the gain ``normalise_gray`` applies, and the ceiling of the scaled image (bright
+#: Earth or Sun beside a dark spacecraft stay bright, not unbounded).
+GRAY_GAIN = (0.5, 16.0)
+GRAY_CEILING = 2.0
 
 
 @dataclass(frozen=True)
@@ -50,11 +62,10 @@ class ModelConfig:
     fsnet_inputs: str = "both"  # Table 4: "both", "gray", "sparse"
     grid: int = 4  # CCA regions per side: M = grid^2 regions whatever the input size
     heads: int = 4
-    depth_scale_m: float = 10.0  # depth inputs (and "mean" outputs) are in units of this
-    depth_base: str = "plane"  # "plane": residual on a local plane fit; "mean": on the mean return
-    subpixel: bool = True  # FDCNet sees gray blocks and predicts factor^2 sub-pixel residuals
-    residual_scale_m: float = 1.0  # "plane": the residual head's output unit
+    input_span_px: float = 256.0  # depth inputs: units of the metres this many pixels span
+    residual_span_px: float = 16.0  # the residual head's unit, likewise
     mask_refiner: bool = True  # full-resolution refinement of FSNet's logits on the gray image
+    sigma_per_scale: float = 1.14  # sigma / the Laplace scale: set by ``sdc-train calibrate``
 
     @property
     def stride(self) -> int:
@@ -67,8 +78,8 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> ModelConfig:
-        """A config as saved; fields it predates take the values models had before them."""
-        return cls(**{**LEGACY_FIELDS, **d, "widths": tuple(d["widths"])})
+        """A config as saved in a checkpoint."""
+        return cls(**{**d, "widths": tuple(d["widths"])})
 
     def __post_init__(self):
         if self.factor % self.seg_factor:
@@ -77,17 +88,6 @@ class ModelConfig:
             )
         if self.fsnet_inputs not in FSNET_INPUTS:
             raise ValueError(f"fsnet_inputs must be one of {FSNET_INPUTS}")
-        if self.depth_base not in DEPTH_BASES:
-            raise ValueError(f"depth_base must be one of {DEPTH_BASES}")
-
-
-#: What configs saved before a field existed meant by it (the first shipped model's design).
-LEGACY_FIELDS = {
-    "depth_base": "mean",
-    "subpixel": False,
-    "residual_scale_m": 1.0,
-    "mask_refiner": False,
-}
 
 
 VARIANTS: dict[str, ModelConfig] = {
@@ -96,10 +96,6 @@ VARIANTS: dict[str, ModelConfig] = {
     "fsnet": ModelConfig(fusion="guided"),  # baseline + FSNet
     "fsnet+cca": ModelConfig(fusion="cca"),
     "fsnet+sa": ModelConfig(fusion="sa"),
-    # The depth path's ablation: the first shipped design (residual on the mean return, on the
-    # morphological pre-fill, bilinear upsampling), and the plane fit without sub-pixel output.
-    "sdcnet-v1": ModelConfig(depth_base="mean", subpixel=False, mask_refiner=False),
-    "plane": ModelConfig(subpixel=False),
 }
 
 
@@ -110,13 +106,39 @@ def build_model(variant: str = "sdcnet", **overrides) -> SDCNet:
     return SDCNet(replace(VARIANTS[variant], **overrides))
 
 
+def reference_depth(sparse: torch.Tensor) -> torch.Tensor:
+    """Mean LIDAR return per image (B, 1, 1, 1) metres; 0 when there is none."""
+    total = sparse.sum(dim=(2, 3), keepdim=True)
+    count = (sparse > 0).to(sparse.dtype).sum(dim=(2, 3), keepdim=True)
+    return total / count.clamp_min(1.0)
+
+
+def footprint_m(d_ref: torch.Tensor, focal_px: torch.Tensor) -> torch.Tensor:
+    """Metres one pixel spans at the mean return's range (B, 1, 1, 1); 1 m without returns."""
+    return torch.where(d_ref > 0, d_ref / focal_px.clamp_min(1e-6), torch.ones_like(d_ref))
+
+
+def normalise_gray(gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
+    """Gray (B, 1, H, W) scaled so that its mean at the LIDAR returns (the spacecraft, whatever
+    the sky behind it) is ``GRAY_TARGET``: an 8-bit frame and a 12-bit one stored in 16 bits,
+    an under- and an over-exposed one, look alike. Gain within ``GRAY_GAIN``; 1 without
+    returns; values capped at ``GRAY_CEILING``."""
+    returns = (sparse > 0).to(gray.dtype)
+    count = returns.sum(dim=(2, 3), keepdim=True)
+    mean = (gray * returns).sum(dim=(2, 3), keepdim=True) / count.clamp_min(1.0)
+    gain = (GRAY_TARGET / mean.clamp_min(1e-4)).clamp(*GRAY_GAIN)
+    gain = torch.where(count > 0, gain, torch.ones_like(gain))
+    return (gray * gain).clamp_max(GRAY_CEILING)
+
+
 class SDCNet(nn.Module):
     def __init__(self, config: ModelConfig = ModelConfig()):
         super().__init__()
         self.config = config
-        self.prefill = MorphologicalPrefill()
+        self.prefill = NearestReturnFill()
+        self.plane_fit = AdaptivePlaneFit(factor=config.factor)
         blocks = config.seg_factor**2  # full-resolution pixels per FSNet pixel
-        fs_channels = {"both": blocks + 2, "gray": blocks, "sparse": 2}[config.fsnet_inputs]
+        fs_channels = {"both": blocks + 3, "gray": blocks, "sparse": 3}[config.fsnet_inputs]
         self.fsnet = (
             FSNet(in_channels=fs_channels, out_channels=blocks) if config.use_fsnet else None
         )
@@ -125,87 +147,98 @@ class SDCNet(nn.Module):
             if config.use_fsnet and config.mask_refiner
             else None
         )
-        plane = config.depth_base == "plane"
-        self.plane_fit = PlaneFitPrefill(factor=config.factor) if plane else None
-        cells = config.factor**2 if config.subpixel else 1  # outputs per working pixel
+        cells = config.factor**2  # sub-pixel outputs per working pixel
         self.fdcnet = FDCNet(
             gray_channels=cells,
-            depth_channels=4 if plane else 2,
+            depth_channels=DEPTH_INPUTS,
             out_channels=cells,
             widths=config.widths,
             fusion=config.fusion,
             grid=config.grid,
             heads=config.heads,
         )
-        if plane:  # start from the plane fit itself: the residual head begins at zero
-            nn.init.zeros_(self.fdcnet.head.weight)
-            nn.init.zeros_(self.fdcnet.head.bias)
+        # start from the plane fit itself: the residual head begins at zero
+        nn.init.zeros_(self.fdcnet.head.weight)
+        nn.init.zeros_(self.fdcnet.head.bias)
 
     def segmentation_parameters(self) -> list[nn.Parameter]:
         """Stage 1 trains these; stage 2 freezes them."""
         parts = [m for m in (self.fsnet, self.refiner) if m is not None]
         return [p for m in parts for p in m.parameters()]
 
-    def reference_depth(self, sparse_lr: torch.Tensor) -> torch.Tensor:
-        """Mean LIDAR return per image (B, 1, 1, 1) metres; 0 when there is none."""
-        total = sparse_lr.sum(dim=(2, 3), keepdim=True)
-        count = (sparse_lr > 0).to(sparse_lr.dtype).sum(dim=(2, 3), keepdim=True)
-        return total / count.clamp_min(1.0)
+    def residual_unit(self, sparse: torch.Tensor, focal_px: torch.Tensor) -> torch.Tensor:
+        """Metres of one unit of the residual head (B, 1, 1, 1): also the depth loss's unit,
+        so that a frame at 3 m and one at 250 m weigh alike in training."""
+        return self.config.residual_span_px * footprint_m(reference_depth(sparse), focal_px)
 
-    def _prepare(self, gray: torch.Tensor, sparse: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Padded full-resolution gray, the sparse map at FSNet's and at the depth networks'
-        resolutions, the gray image at the latter, and the reference depth."""
+    def _prepare(
+        self, gray: torch.Tensor, sparse: torch.Tensor, focal_px: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """Padded, normalised full-resolution gray; the sparse map at full, FSNet's and the
+        depth networks' resolutions; the nearest-return fill at the latter; the mean return
+        and the depth inputs' unit."""
         H, W = gray.shape[-2:]
         s = self.config.stride
         pad = (0, (s - W % s) % s, 0, (s - H % s) % s)
         gray_p, sparse_p = F.pad(gray, pad), F.pad(sparse, pad)
         sparse_seg = near_wins_downsample(sparse_p, self.config.seg_factor)
         sparse_lr = near_wins_downsample(sparse_seg, self.config.factor // self.config.seg_factor)
+        filled, reach = self.prefill(sparse_lr)
+        d_ref = reference_depth(sparse_p)
         return {
-            "gray": gray_p,
-            "gray_lr": F.avg_pool2d(gray_p, self.config.factor),
+            "gray": normalise_gray(gray_p, sparse_p),
             "sparse": sparse_p,
             "sparse_seg": sparse_seg,
-            "sparse_lr": sparse_lr,
-            "d_ref": self.reference_depth(sparse_lr),
+            "filled": filled,
+            "reach": reach,
+            "d_ref": d_ref,
+            "unit": self.config.input_span_px * footprint_m(d_ref, focal_px),
         }
 
     def _segment(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
         """Foreground probability at full (padded) resolution."""
         seg = self.config.seg_factor
         returns = (x["sparse_seg"] > 0).to(x["gray"].dtype)
-        relative = returns * (x["sparse_seg"] - x["d_ref"]) / self.config.depth_scale_m
+        relative = returns * (x["sparse_seg"] - x["d_ref"]) / x["unit"]
+        reach = F.interpolate(x["reach"], size=returns.shape[-2:], mode="nearest")
         blocks = space_to_depth(x["gray"], seg)  # space-to-depth: full-resolution detail
         fs_in = {
-            "both": [blocks, returns, relative],
+            "both": [blocks, returns, relative, reach],
             "gray": [blocks],
-            "sparse": [returns, relative],
+            "sparse": [returns, relative, reach],
         }[self.config.fsnet_inputs]
         logit_blocks = self.fsnet(torch.cat(fs_in, 1))
         if self.refiner is not None:
             logit_blocks = self.refiner(blocks, logit_blocks)
         return torch.sigmoid(F.pixel_shuffle(logit_blocks, seg))
 
-    def _regress(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
-        """Dense depth in metres at full (padded) resolution: a base (the local plane fit, or
-        the mean return) plus the residual FDCNet regresses from the gray image and pre-fills."""
-        c = self.config
-        d_ref, scale = x["d_ref"], c.depth_scale_m
-        filled = self.prefill(x["sparse_lr"])
+    def _regress(
+        self, x: dict[str, torch.Tensor], focal_px: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Dense depth and its sigma in metres at full (padded) resolution: the local plane
+        fit (else the nearest return, else the mean return) plus the residual FDCNet
+        regresses from the gray image and the pre-fills."""
+        d_ref, unit = x["d_ref"], x["unit"]
+        plane, weight, level = self.plane_fit(x["sparse"], d_ref)
+        fitted = (weight > 0).to(plane.dtype)
+        filled = x["filled"]
         valid = (filled > 0).to(filled.dtype)
-        depth_in = [valid * (filled - d_ref) / scale, valid]
-        if self.plane_fit is None:
-            base, unit = d_ref, scale
-        else:
-            plane, weight = self.plane_fit(x["sparse"], d_ref)
-            fitted = (weight > 0).to(plane.dtype)
-            depth_in = [fitted * (plane - d_ref) / scale, fitted, *depth_in]
-            base_lr = torch.where(weight > 0, plane, torch.where(filled > 0, filled, d_ref))
-            base, unit = self._upsample(base_lr), c.residual_scale_m
-        gray = space_to_depth(x["gray"], c.factor) if c.subpixel else x["gray_lr"]
-        out = self.fdcnet(gray, torch.cat(depth_in, 1))
-        residual = F.pixel_shuffle(out, c.factor) if c.subpixel else self._upsample(out)
-        return base + unit * residual
+        depth_in = [
+            fitted * (plane - d_ref) / unit,
+            fitted,
+            valid * (filled - d_ref) / unit,
+            valid,
+            level,
+            x["reach"],
+        ]
+        base_lr = torch.where(weight > 0, plane, torch.where(filled > 0, filled, d_ref))
+        gray = space_to_depth(x["gray"], self.config.factor)
+        out, log_scale = self.fdcnet(gray, torch.cat(depth_in, 1))
+        residual = F.pixel_shuffle(out, self.config.factor)
+        scale = torch.exp(F.pixel_shuffle(log_scale, self.config.factor).clamp(-12.0, 8.0))
+        unit_out = self.config.residual_span_px * footprint_m(d_ref, focal_px)
+        depth = self._upsample(base_lr) + unit_out * residual
+        return depth, self.config.sigma_per_scale * unit_out * scale
 
     def _upsample(self, x: torch.Tensor) -> torch.Tensor:
         """Working resolution -> full resolution, bilinear between cell centres."""
@@ -213,20 +246,23 @@ class SDCNet(nn.Module):
             x, scale_factor=self.config.factor, mode="bilinear", align_corners=False
         )
 
-    def segment(self, gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
+    def segment(
+        self, gray: torch.Tensor, sparse: torch.Tensor, focal_px: torch.Tensor
+    ) -> torch.Tensor:
         """Foreground probability (B, 1, H, W) alone: what stage 1 trains, at a fraction of
         the cost of the whole network."""
         H, W = gray.shape[-2:]
-        return self._segment(self._prepare(gray, sparse))[..., :H, :W]
+        return self._segment(self._prepare(gray, sparse, focal_px))[..., :H, :W]
 
     def forward(
-        self, gray: torch.Tensor, sparse: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+        self, gray: torch.Tensor, sparse: torch.Tensor, focal_px: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Depth (metres), foreground probability, sigma (metres), each (B, 1, H, W)."""
         H, W = gray.shape[-2:]
-        x = self._prepare(gray, sparse)
-        depth = self._regress(x)
+        x = self._prepare(gray, sparse, focal_px)
+        depth, sigma = self._regress(x, focal_px)
         if self.fsnet is not None:
             prob = self._segment(x)
         else:  # no segmentation: foreground where the regressed depth is not background
             prob = (depth > 0.5 * x["d_ref"]).to(depth.dtype)
-        return depth[..., :H, :W], prob[..., :H, :W]
+        return depth[..., :H, :W], prob[..., :H, :W], sigma[..., :H, :W]

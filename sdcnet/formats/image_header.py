@@ -18,7 +18,8 @@ import struct
 import zlib
 from dataclasses import dataclass
 
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+from sdcnet.formats import PNG_SIGNATURE, FormatError
+
 _TIFF_WIDTH, _TIFF_LENGTH = 256, 257
 _TIFF_SHORT, _TIFF_LONG = 3, 4
 # JPEG start-of-frame markers: C0-CF except DHT (C4), JPG (C8) and DAC (CC).
@@ -37,12 +38,14 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # by colour type
 _INFLATE_STEP = 2**20  # bytes inflated at a time while the PNG data is measured
 
 
-class HeaderError(ValueError):
-    """The header of an accepted image format is broken."""
+class HeaderError(FormatError):
+    """The header of an accepted image format is broken (code ``unreadable_file``)."""
 
 
 class UnknownFormatError(HeaderError):
     """The bytes are none of the accepted image formats."""
+
+    code = "unsupported_media_type"
 
 
 @dataclass(frozen=True)
@@ -124,8 +127,8 @@ def _check_png_data(data: bytes, header: ImageHeader) -> None:
                 while pending and inflated <= limit:
                     inflated += len(inflater.decompress(pending, _INFLATE_STEP))
                     pending = inflater.unconsumed_tail
-            except zlib.error as exc:
-                raise HeaderError(f"PNG image data is corrupt ({exc})") from exc
+            except zlib.error:
+                raise HeaderError("PNG image data is corrupt: it does not inflate") from None
             if inflated > limit:
                 raise HeaderError(
                     f"PNG image data inflates beyond the {limit} bytes its declared "

@@ -1,0 +1,177 @@
+"""Deadlines and shedding, against the real service (``sdc-serve`` in a subprocess on
+127.0.0.1) with short settings, so that each case takes a second or two: uploads that trickle,
+connections that never finish a head, answers read slowly, requests past the byte limit and
+more requests than the service completes at once (``sdcnet.service.admission``,
+``sdcnet.service.protocol``)."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import httpx
+import pytest
+
+from sdcnet.devtools.attacks import (
+    Trickler,
+    bright_frame,
+    closed_within,
+    connect,
+    request_head,
+    status_of,
+)
+from sdcnet.devtools.frames import multipart_body, png_bytes, synthetic_frame
+from sdcnet.devtools.serving import service_process
+from sdcnet.npyio import npy_bytes
+
+HEAD_TIMEOUT_S = 1.0
+BODY_TIMEOUT_S = 1.0
+MIN_RATE = 4 * 2**20  # bytes/s
+QUEUE_TIMEOUT_S = 0.3
+MAX_UPLOAD_BYTES = 8 * 2**20
+SLACK_S = 1.5  # a loaded 2-core machine's delay beyond a deadline
+
+
+@pytest.fixture(scope="module")
+def url(tmp_path_factory, tiny_model_path):
+    """One request completed at once, four held in all."""
+    log = tmp_path_factory.mktemp("deadlines") / "serve.log"
+    flags = ["--max-in-flight=1", "--max-requests=4", f"--queue-timeout={QUEUE_TIMEOUT_S}"]
+    flags += [f"--body-timeout={BODY_TIMEOUT_S}", f"--min-rate={MIN_RATE}"]
+    flags += [f"--head-timeout={HEAD_TIMEOUT_S}", "--keep-alive=1"]
+    flags += [f"--max-upload-bytes={MAX_UPLOAD_BYTES}"]
+    with service_process(tiny_model_path, log, *flags) as running:
+        yield running.url
+
+
+def form(size: int = 128) -> tuple[bytes, str]:
+    s = synthetic_frame(size, seed=1)
+    return multipart_body(
+        {"gray": ("g.png", png_bytes(s.gray)), "sparse": ("s.npy", npy_bytes(s.sparse))}
+    )
+
+
+def valid(url: str) -> int:
+    body, content_type = form()
+    return httpx.post(
+        f"{url}/complete", content=body, headers={"content-type": content_type}, timeout=30
+    ).status_code
+
+
+def test_trickling_uploads_hold_no_place_and_are_cut_at_the_minimum_rate(url):
+    """Two uploads of a valid form, five bytes a second: before, each held an in-flight
+    place for as long as it trickled (the stall timeout restarted with every byte)."""
+    body, content_type = form()
+    with Trickler(url, "/complete", 2, body, content_type, 0.2) as trickle:
+        statuses = [valid(url) for _ in range(3)]
+        deadline = time.monotonic() + BODY_TIMEOUT_S + 2 * SLACK_S
+        while None in trickle.ended and time.monotonic() < deadline:
+            time.sleep(0.1)
+        ended = list(trickle.ended)
+    assert statuses == [200, 200, 200]
+    assert None not in ended, "a trickling upload was never cut"
+    for seconds, status in ended:
+        assert status == 408 and seconds <= BODY_TIMEOUT_S + SLACK_S
+
+
+@pytest.mark.parametrize(
+    "sends",
+    [
+        [b"POST /compl"],  # half a request line
+        [b"POST /complete HTTP/1.1\r\n"] + [b"X-Slow: 1\r\n"] * 20,  # slowloris, 0.3 s apart
+        [],  # nothing
+    ],
+    ids=["half_request_line", "slowloris", "silent"],
+)
+def test_a_connection_without_a_complete_head_is_closed(url, sends):
+    sock = connect(url)
+    start = time.monotonic()
+    for chunk in sends:
+        try:
+            sock.sendall(chunk)
+        except OSError:  # closed already
+            break
+        if closed_within(sock, 0.3)[0] is not None:
+            break
+    closed, _ = closed_within(sock, HEAD_TIMEOUT_S + SLACK_S)
+    sock.close()
+    assert closed is not None, "the connection is still open"
+    assert time.monotonic() - start <= HEAD_TIMEOUT_S + SLACK_S + 0.3
+    assert valid(url) == 200
+
+
+def test_an_answer_read_slowly_gives_its_place_back_and_is_dropped(url):
+    """A client that asks for a 12 MB answer and reads none of it: the others are served
+    meanwhile, and once the answer is later than the minimum rate allows, the connection is
+    dropped (before, the answer stayed in the server's buffers for as long as the client
+    kept the connection)."""
+    gray, returns = bright_frame(768, every=2)
+    body, content_type = multipart_body({"gray": ("g.png", gray), "returns": ("r.npy", returns)})
+    reader = connect(url, receive_buffer=4096)
+    reader.sendall(request_head("/complete", len(body), content_type) + body)
+    try:
+        reader.settimeout(30)
+        assert status_of(reader.recv(12, socket.MSG_PEEK)) == 200  # it began, unread
+        assert [valid(url) for _ in range(2)] == [200, 200]
+        dropped = reset_within(reader, BODY_TIMEOUT_S + 12e6 / MIN_RATE + SLACK_S)
+    finally:
+        reader.close()
+    assert dropped, "the slow reader's connection is still open"
+
+
+def reset_within(sock: socket.socket, limit_s: float) -> bool:
+    """Whether the server resets the connection within ``limit_s``, read from the socket's
+    pending error: reading would drain the answer the client is meant to leave unread."""
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        if sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_a_request_waits_for_a_place_no_longer_than_the_queue_timeout(url):
+    """Six requests at once for one place: the ones answered waited at most the queue
+    timeout (the wait is in their Server-Timing), the others got 503 with Retry-After."""
+    body, content_type = form(512)
+    start = threading.Barrier(6)
+    answers: list[httpx.Response] = []
+
+    def send() -> None:
+        start.wait()
+        answers.append(
+            httpx.post(
+                f"{url}/complete",
+                content=body,
+                headers={"content-type": content_type},
+                timeout=60,
+            )
+        )
+
+    threads = [threading.Thread(target=send) for _ in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    statuses = sorted(a.status_code for a in answers)
+    assert set(statuses) <= {200, 503} and 200 in statuses and 503 in statuses, statuses
+    for answer in answers:
+        if answer.status_code == 503:
+            assert answer.json()["error"]["code"] == "overloaded"
+            assert "retry-after" in answer.headers
+            continue
+        timing = dict(part.split(";dur=") for part in answer.headers["server-timing"].split(", "))
+        assert float(timing["wait"]) <= QUEUE_TIMEOUT_S * 1e3 + 100
+
+
+def test_a_body_past_the_byte_limit_is_refused_unread_and_its_connection_closed(url):
+    """A declared 100 MiB body: 413 at once and the connection closed, none of it read
+    (before, uvicorn read all of it to discard it)."""
+    sock = connect(url)
+    sock.sendall(request_head("/complete", 100 * 2**20, "multipart/form-data; boundary=x"))
+    sock.sendall(bytes(2**16))
+    closed, answer = closed_within(sock, 5.0)
+    sock.close()
+    assert status_of(answer) == 413
+    assert closed is not None and closed < 2.0
