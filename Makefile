@@ -79,7 +79,8 @@ docker-check: $(STAMP)
 ## model (git $(PREVIOUS), whose card tells its own five runs on the paper's world), in the three
 ## steps the shipped model took: FSNet one epoch; FSNet three more and stage 2 three (the shipped
 ## run had a six-epoch schedule and was stopped after three; its best epoch was the first); FSNet
-## fine-tuned three more epochs on the trained FDCNet. Then its sigma is calibrated on val.
+## fine-tuned three more epochs on the trained FDCNet. Then its sigma is calibrated on val, the
+## scale head alone, then with the depth-edge term.
 .PHONY: model
 PRESET ?= cpu
 PREVIOUS ?= e6a386e
@@ -95,7 +96,9 @@ model: $(STAMP)
 	$(FIT) --out $(RUN)c --init-weights $(RUN)b/best.pt --fsnet-epochs 3 --epochs 0 --lr 5e-4 --seed 2
 	$(VENV)/bin/sdc-train ship --checkpoint $(RUN)c/best_stage1.pt --out $(RUN)c/shipped.pt
 	$(VENV)/bin/sdc-train calibrate --checkpoint $(RUN)c/shipped.pt --data data/mixed --split val \
-		--out models/sdcnet.pt
+		--edge-weight 0 --out $(RUN)c/calibrated.pt
+	$(VENV)/bin/sdc-train calibrate --checkpoint $(RUN)c/calibrated.pt --data data/mixed \
+		--split val --edge-weight 0.5 --out models/sdcnet.pt
 	$(MAKE) reports
 
 ## reports: evaluate the shipped checkpoint beside the previous model (git $(PREVIOUS), run by its

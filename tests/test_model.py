@@ -18,7 +18,13 @@ from sdcnet.training.model.blocks import space_to_depth
 from sdcnet.training.model.cca import CrossChannelAttention
 from sdcnet.training.model.mask_refiner import MaskRefiner
 from sdcnet.training.model.prefill import NearestReturnFill, near_wins_downsample
-from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet, build_model
+from sdcnet.training.model.sdcnet import (
+    VARIANTS,
+    ModelConfig,
+    SDCNet,
+    build_model,
+    local_depth_spread,
+)
 
 FOCAL = torch.full((1, 1, 1, 1), 7939.2)
 
@@ -282,3 +288,38 @@ def test_the_laplace_nll_is_its_hand_computed_value_and_never_moves_the_depth():
     b = torch.tensor([[[[0.3, 1.0, 1.0]]]], requires_grad=True)
     laplace_nll(depth.detach(), b, prob, gt).backward()
     torch.testing.assert_close(b.grad[..., :2], torch.zeros(1, 1, 1, 2), atol=1e-4, rtol=0)
+
+
+def test_the_depth_spread_is_the_step_at_a_depth_edge_and_zero_on_a_flat_panel():
+    """A panel at 10 m in front of one at 13 m: the spread is 3 m within two pixels of the
+    edge, 0 farther away and off the foreground."""
+    depth = torch.full((1, 1, 12, 12), 13.0)
+    depth[..., :, :6] = 10.0
+    foreground = torch.ones_like(depth, dtype=torch.bool)
+    foreground[..., :, 11] = False
+    spread = local_depth_spread(depth, foreground)
+    assert torch.allclose(spread[..., :, 4:8], torch.tensor(3.0))
+    assert not spread[..., :, :4].any() and not spread[..., :, 8:11].any()
+    assert not spread[..., :, 11].any()
+
+
+def test_the_depth_edge_term_joins_sigma_at_inference_only():
+    """Training fits the scale head's own Laplace scale; the calibrated edge term is added in
+    quadrature when the model answers."""
+    torch.manual_seed(0)
+    plain = SDCNet(ModelConfig()).eval()
+    edged = SDCNet(ModelConfig(sigma_edge_weight=0.5))
+    edged.load_state_dict(plain.state_dict())
+    gray, sparse = torch.rand(1, 1, 64, 64), torch.zeros(1, 1, 64, 64)
+    sparse[..., ::9, ::6] = 80.0
+    sparse[..., 30:, ::6] = torch.where(sparse[..., 30:, ::6] > 0, 90.0, 0.0)
+    focal = torch.full((1, 1, 1, 1), 2000.0)
+    with torch.no_grad():  # both in training mode alike (batch statistics), then answering
+        _, _, trained_plain = plain.train()(gray, sparse, focal)
+        _, _, trained = edged.train()(gray, sparse, focal)
+        depth, prob, sigma = plain.eval()(gray, sparse, focal)
+        _, _, answered = edged.eval()(gray, sparse, focal)
+    torch.testing.assert_close(trained, trained_plain)
+    spread = 0.5 * local_depth_spread(depth, prob > 0.5)
+    assert spread.any()
+    torch.testing.assert_close(answered, torch.sqrt(sigma**2 + spread**2))

@@ -18,6 +18,7 @@ from sdcnet.training.cli import main as train_main
 from sdcnet.training.cli import parser as train_parser
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet
 from sdcnet.training.train import TrainConfig, config_from_preset
+from sdcnet.training.uncertainty import with_sigma
 
 
 @pytest.fixture(scope="module")
@@ -360,11 +361,14 @@ def test_calibrate_scales_sigma_to_cover_68_percent_of_the_errors(
     assert report["within_2_after"] >= report["within_1_after"]
     factor = after.config.sigma_per_scale / before.config.sigma_per_scale
     assert factor == pytest.approx(report["factor"])
+    # the default depth-edge weight (0.5) joined the scale head's sigma, then both were scaled
+    assert after.config.sigma_edge_weight == pytest.approx(0.5 * factor)
+    measured = with_sigma(before, before.config.sigma_per_scale, 0.5)
     gray, sparse = torch.rand(1, 1, 64, 64), torch.zeros(1, 1, 64, 64)
     sparse[..., ::9, ::6] = 80.0
     focal = torch.full((1, 1, 1, 1), 2000.0)
     with torch.no_grad():
-        d0, p0, s0 = before(gray, sparse, focal)
+        d0, p0, s0 = measured(gray, sparse, focal)
         d1, p1, s1 = after(gray, sparse, focal)
     torch.testing.assert_close(d1, d0)  # only sigma changes, by the factor
     torch.testing.assert_close(p1, p0)

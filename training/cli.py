@@ -393,6 +393,13 @@ def parser() -> argparse.ArgumentParser:
     k.add_argument("--data", required=True, help="a dataset whose split was not trained on")
     k.add_argument("--split", default="val")
     k.add_argument("--limit", type=int, default=90, help="frames, evenly spread")
+    k.add_argument(
+        "--edge-weight",
+        type=float,
+        default=0.5,
+        help="sigma's depth-edge term per metre of local depth spread, before the scaling "
+        "(0: the scale head alone)",
+    )
     k.add_argument("--out", required=True, help="the calibrated checkpoint")
     k.set_defaults(func=cmd_calibrate)
 
@@ -529,9 +536,10 @@ def cmd_ship(args: argparse.Namespace) -> int:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Set the model's sigma so that it covers 68 % of the errors on frames not trained on."""
-    from sdcnet.training.uncertainty import calibrated, error_ratios
+    from sdcnet.training.uncertainty import calibrated, error_ratios, with_sigma
 
     model, state = load_checkpoint(args.checkpoint)
+    model = with_sigma(model, model.config.sigma_per_scale, args.edge_weight)
     store = SampleStore(args.data)
     records = store.split(args.split, args.limit)
     if not records:
@@ -546,7 +554,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     }
     save_checkpoint(Path(args.out), fixed, **keep)
     print(
-        f"sigma x {report['factor']:.3f} (sigma_per_scale {report['sigma_per_scale']:.3f}): "
+        f"sigma x {report['factor']:.3f} (sigma_per_scale {report['sigma_per_scale']:.3f}, "
+        f"sigma_edge_weight {report['sigma_edge_weight']:.3f}): "
         f"within 1 / 2 sigma {100 * report['within_1_before']:.1f} / "
         f"{100 * report['within_2_before']:.1f} % -> {100 * report['within_1_after']:.1f} / "
         f"{100 * report['within_2_after']:.1f} % on {report['pixels']} px of {len(records)} "

@@ -2,8 +2,9 @@
 
 The scale head is trained to the Laplace negative log-likelihood; whether |error| <= sigma for
 68 % of pixels on frames of spacecraft it never saw is a measurement, not a given. This module
-measures the ratio |error| / sigma on the true-positive pixels of a split and sets the model's
-``sigma_per_scale`` so that its 68th percentile is 1.
+measures the ratio |error| / sigma on the true-positive pixels of a split and scales the
+model's sigma (``sigma_per_scale`` and the depth-edge term's ``sigma_edge_weight`` alike) so that
+its 68th percentile is 1.
 """
 
 from __future__ import annotations
@@ -41,22 +42,30 @@ def error_ratios(
     return np.concatenate(ratios) if ratios else np.empty(0)
 
 
+def with_sigma(model: SDCNet, per_scale: float, edge_weight: float) -> SDCNet:
+    """A copy of ``model`` (eval mode) whose sigma has these two coefficients."""
+    config = replace(model.config, sigma_per_scale=per_scale, sigma_edge_weight=edge_weight)
+    copy = SDCNet(config)
+    copy.load_state_dict(model.state_dict())
+    return copy.eval()
+
+
 def calibrated(model: SDCNet, ratios: np.ndarray) -> tuple[SDCNet, dict[str, float]]:
-    """``model`` with ``sigma_per_scale`` set so that |error| <= sigma on ``TARGET_COVERAGE``
-    of the measured pixels; and the coverage at 1 and 2 sigma before and after."""
+    """``model`` with its sigma scaled so that |error| <= sigma on ``TARGET_COVERAGE`` of the
+    measured pixels; and the coverage at 1 and 2 sigma before and after."""
     if ratios.size == 0:
         raise ValueError("no true-positive pixel to calibrate on")
     factor = float(np.quantile(ratios, TARGET_COVERAGE))
-    config = replace(model.config, sigma_per_scale=model.config.sigma_per_scale * factor)
-    fixed = SDCNet(config)
-    fixed.load_state_dict(model.state_dict())
+    config = model.config
+    fixed = with_sigma(model, config.sigma_per_scale * factor, config.sigma_edge_weight * factor)
     report = {
         "factor": factor,
-        "sigma_per_scale": config.sigma_per_scale,
+        "sigma_per_scale": fixed.config.sigma_per_scale,
+        "sigma_edge_weight": fixed.config.sigma_edge_weight,
         "within_1_before": float(np.mean(ratios <= 1)),
         "within_2_before": float(np.mean(ratios <= 2)),
         "within_1_after": float(np.mean(ratios <= factor)),
         "within_2_after": float(np.mean(ratios <= 2 * factor)),
         "pixels": int(ratios.size),
     }
-    return fixed.eval(), report
+    return fixed, report

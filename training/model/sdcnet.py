@@ -5,7 +5,12 @@ focal_px (B, 1, 1, 1), the focal length in pixels of the grid the two maps are o
 Outputs: dense depth (B, 1, H, W) in metres, foreground probability (B, 1, H, W) and the
 depth's uncertainty sigma (B, 1, H, W) in metres: the scale of a Laplace distribution of the
 error times ``sigma_per_scale`` (1.14 for a Laplace error: |error| <= sigma for 68 % of
-pixels; ``sdc-train calibrate`` measures it on frames not trained on).
+pixels; ``sdc-train calibrate`` measures it on frames not trained on). At inference a depth-edge
+term joins it: ``sigma_edge_weight`` times the spread of the predicted depth over the 5 x 5
+working pixels around each foreground pixel, added in quadrature. The scale head alone says
+centimetres where a pixel sits between two surfaces metres apart; the spread says how far
+apart they are. The term is set by ``sdc-train calibrate``, not trained: in training mode
+sigma is the scale head's alone (its loss is the Laplace likelihood of that scale).
 
 The pipeline (``sdcnet.pipeline``) resamples every frame's crop to about the same number of
 working pixels, so the network sees a spacecraft a few hundred pixels across whatever the
@@ -66,6 +71,7 @@ class ModelConfig:
     residual_span_px: float = 16.0  # the residual head's unit, likewise
     mask_refiner: bool = True  # full-resolution refinement of FSNet's logits on the gray image
     sigma_per_scale: float = 1.14  # sigma / the Laplace scale: set by ``sdc-train calibrate``
+    sigma_edge_weight: float = 0.0  # sigma's depth-edge term per metre of local depth range
 
     @property
     def stride(self) -> int:
@@ -129,6 +135,19 @@ def normalise_gray(gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
     gain = (GRAY_TARGET / mean.clamp_min(1e-4)).clamp(*GRAY_GAIN)
     gain = torch.where(count > 0, gain, torch.ones_like(gain))
     return (gray * gain).clamp_max(GRAY_CEILING)
+
+
+def local_depth_spread(
+    depth: torch.Tensor, foreground: torch.Tensor, size: int = 5
+) -> torch.Tensor:
+    """(B, 1, H, W) metres: max - min of ``depth`` over the foreground pixels of the ``size`` x
+    ``size`` window around each foreground pixel; 0 off the foreground."""
+    pad = size // 2
+    far = torch.where(foreground, depth, torch.zeros_like(depth))
+    near = torch.where(foreground, -depth, torch.full_like(depth, -1e6))
+    high = F.max_pool2d(far, size, stride=1, padding=pad)
+    low = -F.max_pool2d(near, size, stride=1, padding=pad)
+    return torch.where(foreground, high - low, torch.zeros_like(depth))
 
 
 class SDCNet(nn.Module):
@@ -265,4 +284,7 @@ class SDCNet(nn.Module):
             prob = self._segment(x)
         else:  # no segmentation: foreground where the regressed depth is not background
             prob = (depth > 0.5 * x["d_ref"]).to(depth.dtype)
+        if self.config.sigma_edge_weight > 0 and not self.training:
+            spread = self.config.sigma_edge_weight * local_depth_spread(depth, prob > 0.5)
+            sigma = torch.sqrt(sigma * sigma + spread * spread)
         return depth[..., :H, :W], prob[..., :H, :W], sigma[..., :H, :W]
