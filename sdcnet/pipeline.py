@@ -11,7 +11,8 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    across;
 3. **infer**: the model, told the focal length in working pixels so that it can put its depths
    in units of the pixel footprint;
-4. **paste back** at the frame's resolution: stars and noise dropped (``drop_specks``),
+4. **anchor** the depth to the returns it should agree with (``sdcnet.anchoring``);
+5. **paste back** at the frame's resolution: stars and noise dropped (``drop_specks``),
    the probability resampled and thresholded, the depth resampled without blending across
    depth edges (``resample_depth``). Outside the crop the answer is background.
 
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from sdcnet.anchoring import anchor_to_returns, spreading_sigma_px
 from sdcnet.returns import scatter_nearest
 
 ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
@@ -398,12 +400,16 @@ def complete(
     threshold: float = 0.5,
 ) -> Completion:
     """Run ``model`` on the spacecraft's region of one frame, resampled to its working grid
-    (``working_inputs``), and paste the answer back at the frame's resolution."""
+    (``working_inputs``), anchor its depth to the returns (``anchor_to_returns``) and paste
+    the answer back at the frame's resolution."""
     inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels)
     grid = inputs.grid
     depth_w, prob_w, sigma_w = run_model(model, inputs)
     kept = drop_specks(prob_w > threshold, inputs.sparse, KEEP_DISTANCE_PX, MIN_PART_PX)
     prob_w = np.where(kept | (prob_w <= threshold), prob_w, 0.0).astype(np.float32)
+    spacing = return_spacing(*return_pixels(inputs.sparse))
+    spread_px = spreading_sigma_px(spacing, 1.0 / grid.scale[1])
+    depth_w = anchor_to_returns(depth_w, prob_w > threshold, inputs.sparse, spread_px)
     returns = inputs.sparse[inputs.sparse > 0]
     footprint = float(returns.mean()) / inputs.focal_px if returns.size else 1.0
     prob_crop = resample_image(prob_w, grid.region.shape)
