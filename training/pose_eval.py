@@ -365,9 +365,16 @@ def report(results: dict[str, list[FrameResult]], clouds_order: list[str]) -> tu
             + " / ".join(f"{c:.0f}" for c in rotation)
             + " %, translation "
             + " / ".join(f"{c:.0f}" for c in translation)
-            + " %.",
+            + " % (an isotropic Gaussian error with that sigma per axis: "
+            + " / ".join(f"{c:.0f}" for c in GAUSSIAN_COVERAGE)
+            + " %).",
         ]
     return "\n".join(lines), data
+
+
+#: Per cent of the errors within 1, 2 and 3 sigma for an isotropic 3-D Gaussian error of
+#: standard deviation sigma per axis (the error's norm follows a chi distribution, 3 degrees).
+GAUSSIAN_COVERAGE = (19.9, 73.9, 97.1)
 
 
 def sigma_coverage(results: list[FrameResult]) -> tuple[list[float], list[float]]:
