@@ -11,8 +11,7 @@ module corrects the depth by its residuals at the returns (measured - predicted,
    off every residual, so that on a panel the model fits well the noise is not copied into
    the surface and the normals stay, while an error far above the noise (a depth edge) is
    corrected, less the noise. Most returns lie on surfaces the model fits, so the median
-   measures the noise; a bias of the whole surface would be taken for noise too (the plane
-   fits through the returns do not make one);
+   measures the noise; a bias of the whole surface is taken for noise too, and left;
 2. the corrections are spread by a normalised Gaussian convolution (``sigma_px``
    from the returns' spacing): at a return the correction is mostly its own, between returns a
    weighted mean of the near ones, and it fades to nothing a few ``sigma_px`` away from any.
@@ -34,7 +33,8 @@ SIGMA_PER_SPACING = 0.75
 #: ... within these bounds, in the frame's pixels: at least a pixel's neighbourhood, at most
 #: what keeps a correction on the part of the spacecraft it was measured on.
 SIGMA_BOUNDS_PX = (1.5, 6.0)
-#: Residuals within this many noise scales of their median are taken as the LIDAR's noise.
+#: Residuals within this many noise scales (``MAD_TO_STD`` x their median absolute value) are
+#: taken as the LIDAR's noise.
 SHRINK = 0.75
 #: Median absolute deviation -> standard deviation, for Gaussian noise.
 MAD_TO_STD = 1.4826

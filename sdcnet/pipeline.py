@@ -407,10 +407,10 @@ def complete(
     depth_w, prob_w, sigma_w = run_model(model, inputs)
     kept = drop_specks(prob_w > threshold, inputs.sparse, KEEP_DISTANCE_PX, MIN_PART_PX)
     prob_w = np.where(kept | (prob_w <= threshold), prob_w, 0.0).astype(np.float32)
-    spacing = return_spacing(*return_pixels(inputs.sparse))
-    spread_px = spreading_sigma_px(spacing, 1.0 / grid.scale[1])
+    rows, cols = return_pixels(inputs.sparse)
+    spread_px = spreading_sigma_px(return_spacing(rows, cols), 1.0 / grid.scale[1])
     depth_w = anchor_to_returns(depth_w, prob_w > threshold, inputs.sparse, spread_px)
-    returns = inputs.sparse[inputs.sparse > 0]
+    returns = inputs.sparse[rows, cols]
     footprint = float(returns.mean()) / inputs.focal_px if returns.size else 1.0
     prob_crop = resample_image(prob_w, grid.region.shape)
     depth_crop = resample_depth(depth_w, grid.region.shape, footprint)

@@ -664,9 +664,9 @@ def _refine_dense(model: TargetModel, observed: _Observed, start: Pose, fine: bo
 #: GICP's Hessian counts every point of the cloud as an independent measurement of the pose;
 #: the completed cloud's points are interpolated between far fewer returns, and the target's
 #: mesh is not the flying spacecraft's surface, so it is too confident by about these factors
-#: (rotation, translation standard deviations): with them, the median error of the answers
+#: (rotation, translation standard deviations), chosen so that the median error of the answers
 #: marked reliable on the test split's spacecraft is chi(3)'s median, 1.54 sigma, as for an
-#: isotropic Gaussian error (the fit and its check on the real spacecraft: docs/pose/README.md).
+#: isotropic Gaussian error (the fit and its coverage: docs/pose/README.md, "Sigma").
 SIGMA_INFLATION = (3.5, 4.4)
 
 
