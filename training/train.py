@@ -12,13 +12,10 @@ import csv
 import json
 import os
 import platform
-import shlex
-import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from functools import cached_property
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -51,7 +48,8 @@ from sdcnet.training.losses import (
     segmentation_loss,
     soft_iou_loss,
 )
-from sdcnet.training.model.sdcnet import VARIANTS, ModelConfig, SDCNet, build_model
+from sdcnet.training.model.sdcnet import ModelConfig, SDCNet, build_model
+from sdcnet.training.train_config import TrainConfig
 
 
 class Segmenter(torch.nn.Module):
@@ -66,66 +64,6 @@ class Segmenter(torch.nn.Module):
         self, gray: torch.Tensor, sparse: torch.Tensor, focal_px: torch.Tensor
     ) -> torch.Tensor:
         return self.model.segment(gray, sparse, focal_px)
-
-
-def setting(default: Any, help: str, **flag: Any) -> Any:
-    """A ``TrainConfig`` field with its ``sdc-train fit`` flag's ``help`` (and any other
-    argparse keyword, such as ``choices``) in its metadata: the flags are made from them."""
-    return field(default=default, metadata={"help": help, **flag})
-
-
-@dataclass
-class TrainConfig:
-    """One training run. ``preset`` fills the recipe; any field can be overridden (each is a
-    flag of ``sdc-train fit``: ``--batch-size`` for ``batch_size``)."""
-
-    data: str = field(metadata={"help": "dataset directory (sdc-data generate)"})
-    out: str = field(metadata={"help": "run directory: checkpoints, log.csv, plots"})
-    variant: str = setting("sdcnet", "the network (an ablation variant)", choices=sorted(VARIANTS))
-    fsnet_inputs: str = setting(
-        "both", "what FSNet sees: gray, sparse or both", choices=("both", "gray", "sparse")
-    )
-    fsnet_epochs: int = setting(
-        30, "epochs of stage 1 (FSNet alone); 0 skips it, from --init-weights"
-    )
-    epochs: int = setting(50, "epochs of stage 2 (depth; FSNet frozen); 0 skips it")
-    batch_size: int = setting(8, "tiles per step")
-    tile: int = setting(512, "side of a training tile, pixels")
-    lr: float = setting(1e-3, "Adam's learning rate at the start of each stage (cosine decay)")
-    weight_decay: float = setting(1e-3, "Adam's weight decay")
-    gradient_loss: float = setting(
-        1.0, "weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)"
-    )
-    iou_loss: float = setting(0.0, "weight of a soft-IOU term beside eq. 6's BCE (stage 1)")
-    sigma_loss: float = setting(
-        1.0, "weight of the uncertainty's Laplace NLL (stage 2; depth detached)"
-    )
-    samples_per_epoch: int | None = setting(
-        None, "training frames drawn per epoch (unset: the whole train split)"
-    )
-    train_samples: int | None = setting(None, "train frames used, evenly spread (unset: every one)")
-    val_samples: int | None = setting(
-        None, "val frames, evenly spread (unset: the whole val split)"
-    )
-    workers: int = setting(2, "data-loading processes")
-    seed: int = setting(0, "random seed")
-    init_segmentation: str | None = setting(
-        None, "checkpoint whose trained FSNet to reuse: skips stage 1"
-    )
-    init_weights: str | None = setting(
-        None,
-        "fine-tune: start from this checkpoint's weights (same variant), e.g. the shipped "
-        "model on your own spacecraft; --epochs 0 trains the segmentation alone",
-    )
-    warm_start: str | None = setting(
-        None,
-        "start from a checkpoint of an earlier design: every weight whose name and shape "
-        "fit, and the shared input channels of layers that gained some",
-    )
-    command: str = field(
-        default_factory=lambda: shlex.join(["sdc-train", *sys.argv[1:]]),
-        metadata={"flag": False},  # recorded, not given
-    )
 
 
 PROVENANCE = ("hardware", "train_config", "dataset", "history", "parent", "segmentation_parent")

@@ -9,7 +9,7 @@ each factor records itself in the sample's metadata.
 - ``any``: cameras of 5-60 deg horizontal field of view at 512-2048 px (square and not,
   principal point off centre), any sensor (``sensor.py``), any LIDAR kind (``lidar.py``),
   ranges 2-300 m (log-uniform, never inside the spacecraft), any background
-  (``background.py``), the sun from anywhere in front of the target to behind it;
+  (``background/``), the sun from anywhere in front of the target to behind it;
 - ``mixed``: the training mixture, a quarter ``paper`` and the rest ``any``;
 - the robustness suite's conditions (``ROBUSTNESS``): one factor pushed at a time.
 """

@@ -3,7 +3,7 @@
 One primary ray per pixel centre (only inside the projected bounding box of the mesh),
 Blinn-Phong shading with per-material parameters, hard shadows from the sun by shadow rays,
 a small ambient term; in front of a background (stars on a black sky by default, or the Earth,
-the Moon, the Sun's glare: ``background.py``), seen by a camera's optics and electronics
+the Moon, the Sun's glare: ``background/``), seen by a camera's optics and electronics
 (``sensor.py``). Depth is camera-frame Z in metres at pixel centres, 0 off the object.
 """
 
@@ -170,7 +170,7 @@ def render_camera(
     sensor: Sensor | None = None,
 ) -> CameraFrame:
     """Gray image (uint8, or uint16 for a 12/16-bit ``sensor``) and ground-truth depth
-    (float32 m) of a posed spacecraft in front of ``background`` (``background.py``, or a
+    (float32 m) of a posed spacecraft in front of ``background`` (``background/``, or a
     radiance image (H, W); default: stars on a black sky), seen by ``sensor`` (default: the
     paper-like camera). The lens's stray light falls on the spacecraft too."""
     radiance, depth = render_radiance(posed, K, rng)

@@ -1,0 +1,165 @@
+"""The answer among the refined hypotheses, and its alternatives.
+
+4. ``returns`` (the LIDAR's own points, centimetre-accurate where the completed cloud is
+   decimetre-accurate) refine the candidates within ``returns_margin`` of the best
+   consistency by point-to-plane ICP; the most consistent stays the answer unless another
+   fits the returns clearly better. Those that fit about as well, far from it in rotation,
+   make the answer ``ambiguous`` (a symmetric target) and are listed as alternatives.
+
+When tracking held, the tracked pose alone is refined on the returns; its symmetric twins are
+scored, not refined.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import small_gicp
+
+from sdcnet.registration.observed import Observed
+from sdcnet.registration.refine import Hypothesis, gicp
+from sdcnet.registration.search import mirrored
+from sdcnet.registration.target import TargetModel, surface_distances, surface_fit
+from sdcnet.rigid import rotation_angle_deg
+
+
+def _distinct(hypotheses: list[Hypothesis], separation_deg: float) -> list[Hypothesis]:
+    """The first of each group of hypotheses less than ``separation_deg`` apart (several
+    starts may converge to one pose)."""
+    kept: list[Hypothesis] = []
+    for h in hypotheses:
+        if all(rotation_angle_deg(h.pose.R, k.pose.R) >= separation_deg for k in kept):
+            kept.append(h)
+    return kept
+
+
+def _explains_as_well(
+    model: TargetModel, other: Hypothesis, best: Hypothesis, returns: np.ndarray | None
+) -> bool:
+    """Whether ``other`` fits the returns (else the cloud) about as well as ``best``."""
+    config = model.config
+    if returns is None:
+        return other.consistency >= best.consistency - config.ambiguity_margin
+    gate = config.returns_max_distance_m / 3
+    error = float(np.mean(np.minimum(surface_distances(model, returns, other.pose), gate)))
+    other.returns_error_m = error
+    return error <= config.returns_ambiguity_ratio * best.returns_error_m
+
+
+def _refine_on_returns(
+    model: TargetModel, candidates: list[Hypothesis], returns: np.ndarray
+) -> list[Hypothesis]:
+    """Each candidate refined by GICP on the LIDAR returns and scored by their mean distance
+    to the target's surface, truncated (the returns' noise is a few centimetres, the
+    completed cloud's decimetres: they tell near-symmetric poses apart); best first. Close
+    returns (a near target: thousands) are thinned to one per ``returns_voxel_of_longest``."""
+    config = model.config
+    source, _ = small_gicp.preprocess_points(
+        returns,
+        downsampling_resolution=model.longest_m * config.returns_voxel_of_longest,
+        num_neighbors=6,
+    )
+    gate = config.returns_max_distance_m
+    thinned = np.asarray(source.points())[:, :3]
+    for h in candidates:
+        # Only the returns near the target at this pose: far ones (another object, or a wrong
+        # candidate) cannot match, and the k-d tree is slow to say so.
+        near = model.field.near(h.pose.inverse().apply(thinned))
+        if np.count_nonzero(near) < config.min_points:
+            h.returns_error_m = float(gate / 3)
+            continue
+        source = small_gicp.PointCloud(thinned[near])
+        pose, _ = gicp(model, source, h.pose, (gate,), config.fine_iterations, kind="PLANE_ICP")
+        h.pose, h.result = gicp(
+            model,
+            source,
+            pose,
+            (gate / 3,),
+            config.final_iterations,
+            precise=True,
+            kind="PLANE_ICP",
+        )
+        distances = surface_distances(model, returns, h.pose)
+        h.returns_error_m = float(np.mean(np.minimum(distances, gate / 3)))
+    return sorted(candidates, key=lambda h: h.returns_error_m)
+
+
+@dataclass
+class _Choice:
+    """The answer among the refined hypotheses, those that explain the frame as well, and
+    the best consistency of the others at least ``alternative_deg`` from it."""
+
+    best: Hypothesis
+    alternatives: list[Hypothesis]
+    runner_up_consistency: float | None
+    returns_rmse_m: float | None = None
+
+
+def _runner_up(model: TargetModel, best: Hypothesis, hypotheses: list[Hypothesis]) -> float | None:
+    """The highest consistency among ``hypotheses`` at least ``alternative_deg`` from
+    ``best`` in rotation; None when there is none."""
+    far = [
+        h.consistency
+        for h in hypotheses
+        if rotation_angle_deg(h.pose.R, best.pose.R) >= model.config.alternative_deg
+    ]
+    return max(far, default=None)
+
+
+def choose_searched(
+    model: TargetModel,
+    hypotheses: list[Hypothesis],
+    returns: np.ndarray | None,
+    prior: Hypothesis | None = None,
+) -> _Choice:
+    """Among the hypotheses about as consistent as the best (within ``returns_margin``, or
+    ``ambiguity_margin`` without returns): the most consistent (or the ``prior``, the init's
+    refined pose, unless the best is more consistent by ``leave_init_margin`` and fits well:
+    ``reliable_min_consistency``), unless another fits the returns clearly better once
+    refined on them (so near-symmetric poses do not flip at random, and a near-twin a little
+    more consistent on a coarse cloud does not win over the returns); the alternatives are
+    those whose returns fit about as well (or, without returns, all of them)."""
+    config = model.config
+    top = hypotheses[0].consistency
+    if prior is not None and (
+        prior.consistency >= top - config.leave_init_margin or top < config.reliable_min_consistency
+    ):
+        top = prior.consistency
+        hypotheses = [prior, *(h for h in hypotheses if h is not prior)]
+    margin = config.ambiguity_margin if returns is None else config.returns_margin
+    candidates = _distinct(
+        [h for h in hypotheses if h.consistency >= top - margin], config.alternative_deg
+    )[: config.max_candidates]
+    if returns is None:
+        runner_up = _runner_up(model, candidates[0], hypotheses)
+        return _Choice(candidates[0], candidates[1:], runner_up)
+    incumbent = candidates[0]
+    ranked = _refine_on_returns(model, candidates, returns)
+    ratio = config.returns_ambiguity_ratio
+    best = ranked[0] if ranked[0].returns_error_m * ratio < incumbent.returns_error_m else incumbent
+    alternatives = [
+        h for h in ranked if h is not best and h.returns_error_m <= ratio * best.returns_error_m
+    ]
+    runner_up = _runner_up(model, best, hypotheses)
+    return _Choice(best, alternatives, runner_up, _returns_rmse(model, returns, best))
+
+
+def choose_tracked(
+    model: TargetModel, tracked: Hypothesis, observed: Observed, returns: np.ndarray | None
+) -> _Choice:
+    """The tracked pose, refined on the returns; its symmetric twins, scored as they are (no
+    refinement: cheap), say whether the frame could tell them apart."""
+    best = _refine_on_returns(model, [tracked], returns)[0] if returns is not None else tracked
+    twins = _distinct([best, *mirrored(model, best, observed)], model.config.alternative_deg)
+    alternatives = [h for h in twins[1:] if _explains_as_well(model, h, best, returns)]
+    return _Choice(
+        best,
+        alternatives,
+        _runner_up(model, best, twins),
+        None if returns is None else _returns_rmse(model, returns, best),
+    )
+
+
+def _returns_rmse(model: TargetModel, returns: np.ndarray, best: Hypothesis) -> float:
+    return surface_fit(model, returns, best.pose, model.config.returns_max_distance_m / 3)[1]

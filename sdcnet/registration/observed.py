@@ -1,0 +1,113 @@
+"""The observed cloud, prepared (downsampled with covariances, and its depth grid across the
+line of sight), and the consistency that scores a pose against it.
+
+3. Each refined pose is scored by how well the target, drawn at that pose, explains the
+   cloud as seen from the camera: on a grid across the line of sight, the cells where both
+   hold a surface at the same depth, over the cells where either does (the target's cells
+   count only outside the observed footprint, so a sparse cloud is not punished for its
+   gaps).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import small_gicp
+
+from sdcnet.registration.target import TargetModel, sight_basis
+from sdcnet.rigid import Pose
+
+
+@dataclass(frozen=True)
+class Observed:
+    """The observed cloud, prepared: downsampled with covariances, and its depth grid."""
+
+    cloud: small_gicp.PointCloud  # downsampled, with covariances
+    points: np.ndarray  # (n, 3) the points of ``cloud``
+    centroid: np.ndarray  # (3,) of the full cloud (pixel-uniform), metres
+    basis: np.ndarray  # rows: two axes across the line of sight, the line of sight
+    cell: float
+    origin: np.ndarray  # (2,) grid corner across the line of sight
+    depth: np.ndarray  # (H, W) nearest depth along the line of sight, inf = none
+    footprint: np.ndarray  # (H, W) bool: the observed cells, grown over the cloud's gaps
+    tolerance: float  # depths closer than this agree, metres
+    coarse_voxel: float  # metres, of ``coarse``
+
+    @functools.cached_property
+    def coarse(self) -> small_gicp.PointCloud:
+        """More coarsely downsampled, with covariances: for the hypotheses (made on demand,
+        tracking needs none)."""
+        cloud, _ = small_gicp.preprocess_points(
+            self.points, downsampling_resolution=self.coarse_voxel, num_neighbors=8
+        )
+        return cloud
+
+
+def _grid_depth(uvd: np.ndarray, origin: np.ndarray, cell: float, shape) -> np.ndarray:
+    """(H, W) nearest depth per cell of points given as (across, across, along) rows."""
+    depth = np.full(shape, np.inf)
+    ij = np.floor((uvd[:, :2] - origin) / cell).astype(np.int64)
+    inside = np.all((ij >= 0) & (ij < shape), axis=1)
+    ij, d = ij[inside], uvd[inside, 2]
+    order = np.argsort(-d)  # nearest written last, so it stays
+    depth[ij[order, 0], ij[order, 1]] = d[order]
+    return depth
+
+
+def observe(cloud: np.ndarray, model: TargetModel) -> Observed:
+    config = model.config
+    L = model.longest_m
+    centroid = np.mean(cloud, axis=0, dtype=np.float64)
+    # A completed cloud holds a point per pixel (up to ~10^6); every k-th of them (pixel
+    # order: an even thinning of the image) still fills every voxel of L / 32.
+    step = max(1, len(cloud) // config.max_cloud_points)
+    points = np.asarray(cloud[::step], np.float64)
+    # Voxels of L / 32, or coarser when the cloud spans more than the target (a cloud that
+    # is not of this target, or wrong intrinsics): at most ~48 across, so the cost stays bound.
+    span = float(np.max(np.ptp(points, axis=0)))
+    voxel = max(L * config.voxel_of_longest, span / 48)
+    small, _ = small_gicp.preprocess_points(points, downsampling_resolution=voxel, num_neighbors=10)
+    kept = np.asarray(small.points())[:, :3]
+    basis = sight_basis(centroid / np.linalg.norm(centroid))
+    cell = L * config.grid_cell_of_longest
+    uvd = kept @ basis.T
+    origin = uvd[:, :2].min(axis=0) - 1.2 * L
+    shape = tuple(np.ceil((uvd[:, :2].max(axis=0) + 1.2 * L - origin) / cell).astype(int))
+    depth = _grid_depth(uvd, origin, cell, shape)
+    # Grow the footprint over the gaps between neighbouring points (LIDAR returns are
+    # decimetres apart): by the median distance to the nearest other point.
+    tree = small_gicp.KdTree(kept)
+    _, squared = tree.batch_knn_search(kept, 2)
+    spacing = float(np.median(np.sqrt(squared[:, 1]))) if len(kept) > 1 else cell
+    radius = int(np.clip(np.ceil(spacing / cell), 1, 12))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    footprint = cv2.dilate(np.isfinite(depth).astype(np.uint8), kernel) > 0
+    return Observed(
+        small,
+        kept,
+        centroid,
+        basis,
+        cell,
+        origin,
+        depth,
+        footprint,
+        2 * cell,
+        L * config.coarse_voxel_of_longest,
+    )
+
+
+def consistency(model: TargetModel, pose: Pose, observed: Observed) -> float:
+    """Share of the cells, where either the target at ``pose`` or the cloud shows a surface,
+    in which both do at the same depth (step 3 of the module docstring)."""
+    uvd = pose.apply(model.render_points) @ observed.basis.T
+    drawn = _grid_depth(uvd, observed.origin, observed.cell, observed.depth.shape)
+    seen = np.isfinite(observed.depth)
+    has = np.isfinite(drawn)
+    both = has & seen
+    agree = np.count_nonzero(np.abs(drawn[both] - observed.depth[both]) < observed.tolerance)
+    outside = np.count_nonzero(has & ~observed.footprint)
+    union = np.count_nonzero(both) + np.count_nonzero(seen & ~has) + outside
+    return agree / max(union, 1)

@@ -1,0 +1,107 @@
+"""The global search, from scratch (no initial pose).
+
+1. Coarse search. The line of sight to the observed cloud's centroid is known, so a
+   hypothesis is a view direction of the target (``views`` on a Fibonacci sphere) and a roll
+   about the line of sight (``rolls`` steps). Its translation puts the centroid of what the
+   target shows from that view (precomputed by a z-buffer of the surface samples: the cloud
+   sees one side, a partial view) on the observed centroid. Each of the views x rolls
+   hypotheses is scored at once, vectorised, by the mean truncated distance of a subset of
+   observed points to the target's surface, read from the distance field.
+2. The ``hypotheses`` best, at least ``separation_deg`` apart, are refined by VGICP
+   (small_gicp) on the downsampled cloud, the ``finalists`` most consistent (step 3,
+   ``sdcnet.registration.observed``) again by GICP. When even the best explains the cloud
+   poorly (consistency below ``retry_below_consistency``: the right basin was not among them),
+   the next ``retry_hypotheses`` are refined too.
+
+The target's self-symmetries (found once, ``TargetModel._symmetries``) turn the best into more
+candidates.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from sdcnet.registration.observed import Observed, consistency
+from sdcnet.registration.refine import Hypothesis, refine_dense
+from sdcnet.registration.target import TargetModel, sight_basis
+from sdcnet.rigid import Pose, axis_angle, rotation_angle_deg
+
+
+def _rotations_onto(vectors: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(V, 3, 3): for each unit vector of ``vectors``, the smallest rotation onto unit ``b``
+    (Rodrigues, vectorised; an exactly opposite vector turns about an axis across it)."""
+    axes = np.cross(vectors, b)
+    sin = np.linalg.norm(axes, axis=1)
+    cos = vectors @ b
+    opposite = sin < 1e-9
+    axes[opposite] = sight_basis(b)[0]
+    sin[opposite] = 0.0
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    x, y, z = axes.T
+    zero = np.zeros_like(x)
+    K = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=1).reshape(-1, 3, 3)
+    angle = np.arctan2(sin, cos)
+    return (
+        np.eye(3) + np.sin(angle)[:, None, None] * K + (1 - np.cos(angle))[:, None, None] * (K @ K)
+    )
+
+
+def _coarse_search(model: TargetModel, observed: Observed, count: int) -> list[Pose]:
+    """The ``count`` best distinct coarse hypotheses, best first (step 1 of the module
+    docstring)."""
+    config = model.config
+    rng = np.random.default_rng(0)
+    pts = observed.points
+    subset = pts[rng.choice(len(pts), min(config.coarse_points, len(pts)), replace=False)]
+    sight = observed.basis[2]
+    rolls = np.array([axis_angle(sight, 2 * np.pi * k / config.rolls) for k in range(config.rolls)])
+    to_sight = _rotations_onto(model.views, sight)
+    rotations = np.matmul(rolls[None], to_sight[:, None]).reshape(-1, 3, 3)  # roll @ to_sight
+    # A point p's target-frame position is R^T (p - c) + visible centroid; as a row vector
+    # (p - c)^T R + centroid^T, read in the distance field's grid coordinates.
+    field = model.field
+    centroids = np.repeat(model.visible_centroids, config.rolls, axis=0)
+    offsets = ((centroids - field.origin) / field.cell).astype(np.float32)
+    scaled = (rotations / field.cell).astype(np.float32)
+    cells = np.matmul((subset - observed.centroid).astype(np.float32)[None], scaled)
+    cells += offsets[:, None, :]
+    truncation = config.coarse_truncation_of_longest * model.longest_m
+    score = np.minimum(field.at_cells(cells), truncation).mean(axis=1)
+    chosen: list[Pose] = []
+    for h in np.argsort(score):
+        R = rotations[h]
+        if all(rotation_angle_deg(R, p.R) >= config.separation_deg for p in chosen):
+            chosen.append(Pose(R, observed.centroid - R @ centroids[h]))
+            if len(chosen) == count:
+                break
+    return chosen
+
+
+def mirrored(model: TargetModel, hypothesis: Hypothesis, observed: Observed) -> list[Hypothesis]:
+    """``hypothesis`` turned by each of the target's symmetries, scored."""
+    poses = [Pose.from_matrix(hypothesis.pose.matrix() @ S) for S in model.symmetries]
+    return [Hypothesis(p, consistency(model, p, observed), hypothesis.result) for p in poses]
+
+
+def search(model: TargetModel, observed: Observed, timings: dict) -> list[Hypothesis]:
+    """Steps 1-2 of the module docstring, scored by step 3: refined hypotheses, most
+    consistent first, with the best's symmetric twins."""
+    config = model.config
+    mark = time.perf_counter()
+    starts = _coarse_search(model, observed, config.hypotheses + config.retry_hypotheses)
+    timings["search_ms"] = (time.perf_counter() - mark) * 1e3
+    mark = time.perf_counter()
+    refined = [refine_dense(model, observed, s, fine=False) for s in starts[: config.hypotheses]]
+    if max(h.consistency for h in refined) < config.retry_below_consistency:
+        refined += [
+            refine_dense(model, observed, s, fine=False) for s in starts[config.hypotheses :]
+        ]
+    refined.sort(key=lambda h: -h.consistency)
+    finalists = [
+        refine_dense(model, observed, h.pose, fine=True) for h in refined[: config.finalists]
+    ]
+    hypotheses = sorted(finalists + refined[config.finalists :], key=lambda h: -h.consistency)
+    timings["refine_ms"] = (time.perf_counter() - mark) * 1e3
+    return hypotheses + mirrored(model, hypotheses[0], observed)
