@@ -42,7 +42,9 @@ import numpy as np
 import yaml
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
-from sdcnet.devtools.attacks import (
+from sdcnet.npyio import npy_bytes
+from sdcnet.returns import returns_from_dense
+from tests.support.attacks import (
     LIBRARY_HINTS,
     ReadyWatch,
     Trickler,
@@ -57,12 +59,10 @@ from sdcnet.devtools.attacks import (
     status_of,
     v2_json_zeros,
 )
-from sdcnet.devtools.frames import multipart_body, png_bytes, synthetic_frame, v2_body
-from sdcnet.devtools.models import tiny_model
-from sdcnet.devtools.serving import memory_kib, service_process
-from sdcnet.devtools.targets import probe_mesh, write_targets
-from sdcnet.npyio import npy_bytes
-from sdcnet.returns import returns_from_dense
+from tests.support.frames import multipart_body, png_bytes, synthetic_frame, v2_body
+from tests.support.models import tiny_model
+from tests.support.serving import memory_kib, service_process
+from tests.support.targets import probe_mesh, write_targets
 
 PEAK_LIMIT_MIB = 512.0  # no request may raise the peak by more over the warm baseline
 READY_LIMIT_MS = 1000.0  # /ready answers within this during every attack

@@ -51,7 +51,7 @@ import matplotlib.pyplot as plt
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
 from benchmarks.service_latency import ENDPOINTS, Run, frame_bodies, send
-from sdcnet.devtools.serving import memory_kib, open_fds, temporary_service
+from tests.support.serving import memory_kib, open_fds, temporary_service
 
 MIB = 1024  # KiB
 

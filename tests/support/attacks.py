@@ -19,8 +19,8 @@ from urllib.parse import urlsplit
 import httpx
 import numpy as np
 
-from sdcnet.devtools.frames import png_bytes
 from sdcnet.npyio import npy_bytes
+from tests.support.frames import png_bytes
 
 #: What a client library or the Python runtime says that a service should not echo: hints
 #: on how to get round a safety limit, and names of the code behind the service.
