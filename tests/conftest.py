@@ -20,6 +20,7 @@ NEEDS_TRAINING = {
     "test_export.py",
     "test_generator.py",
     "test_imports.py",  # imports the training code too
+    "test_wheel.py",  # builds the wheel with the dev extra's build backend (setuptools, wheel)
     "test_model.py",
     "test_plane_fit.py",
     "test_pose_eval.py",  # sdc-train pose: the generator's frames, the shipped model's clouds
