@@ -9,7 +9,7 @@ schema implies) and fuzzing phases on every operation, ``--max-examples`` cases 
 and phase, with all its checks: no 5xx, statuses, content types, headers and bodies as the
 schema says, schema-invalid requests refused, schema-valid ones accepted (positive
 ``POST /complete`` and ``POST /pose`` cases carry a real frame:
-``sdcnet.devtools.fuzzing.real_files_for_valid_cases``), unexpected methods answered 405.
+``tests.support.fuzzing.real_files_for_valid_cases``), unexpected methods answered 405.
 
 Prints the statuses per operation and every failure with a curl command that reproduces it;
 exit status 1 on any failure. ``tests/test_fuzz.py`` runs the same with a few examples.
@@ -21,8 +21,8 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from sdcnet.devtools.fuzzing import fuzz_api, fuzz_targets
-from sdcnet.devtools.serving import temporary_service
+from tests.support.fuzzing import fuzz_api, fuzz_targets
+from tests.support.serving import temporary_service
 
 
 def main(argv: list[str] | None = None) -> int:

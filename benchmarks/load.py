@@ -51,7 +51,8 @@ import matplotlib.pyplot as plt
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
 from benchmarks.service_latency import ENDPOINTS, Run, frame_bodies, send
-from sdcnet.devtools.serving import memory_kib, open_fds, temporary_service
+from tests.support.background import BackgroundLoop
+from tests.support.serving import memory_kib, open_fds, temporary_service
 
 MIB = 1024  # KiB
 
@@ -65,16 +66,14 @@ class Sample:
     fds: int
 
 
-class Sampler:
+class Sampler(BackgroundLoop):
     """Reads the server's RSS and file descriptors from /proc every ``interval`` seconds in a
-    background thread, until stopped."""
+    background thread while in use."""
 
     def __init__(self, pid: int, interval: float):
         self.pid, self.interval = pid, interval
         self.samples: list[Sample] = []
         self.t0 = time.perf_counter()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, daemon=True)
 
     def now(self) -> Sample:
         sample = Sample(
@@ -83,17 +82,9 @@ class Sampler:
         self.samples.append(sample)
         return sample
 
-    def _loop(self) -> None:
-        while not self._stop.wait(self.interval):
+    def loop(self, stop: threading.Event) -> None:
+        while not stop.wait(self.interval):
             self.now()
-
-    def __enter__(self) -> Sampler:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
 
 
 def settled(sampler: Sampler, seconds: float = 2.0) -> Sample:

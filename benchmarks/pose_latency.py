@@ -28,12 +28,12 @@ import httpx
 import numpy as np
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
-from sdcnet.devtools.frames import sample_files
-from sdcnet.devtools.serving import temporary_service
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.rigid import extrapolate, parse_pose
 from sdcnet.training.data.sequence import SequenceConfig, render_sequence
 from sdcnet.training.data.spacecraft import load_mesh_file
+from tests.support.frames import sample_files
+from tests.support.serving import temporary_service
 
 TARGETS_MS = {"pose from scratch": 150.0, "pose tracking": 100.0}
 

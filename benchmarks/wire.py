@@ -55,14 +55,14 @@ from benchmarks.service_latency import server_timing
 from sdcnet.client.api import Client
 from sdcnet.client.transport import Transport
 from sdcnet.dataset_format import Sample, SampleStore, read_sample
-from sdcnet.devtools.frames import generated_samples, multipart_body, png_bytes
-from sdcnet.devtools.serving import benchmark_model, service_process
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.runtime import OnnxModel
 from sdcnet.service.decode import frame_of
 from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
 from sdcnet.service.settings import Settings
+from tests.support.frames import generated_samples, multipart_body, png_bytes
+from tests.support.serving import benchmark_model, service_process
 
 PATHS = (
     "in-process pipeline",

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from sdcnet.devtools.models import tiny_model
+from tests.support.models import tiny_model
 
 #: Test modules of training, export and the generator (torch, embreex).
 NEEDS_TRAINING = {
@@ -20,6 +20,7 @@ NEEDS_TRAINING = {
     "test_export.py",
     "test_generator.py",
     "test_imports.py",  # imports the training code too
+    "test_wheel.py",  # builds the wheel with the dev extra's build backend (setuptools, wheel)
     "test_model.py",
     "test_plane_fit.py",
     "test_pose_eval.py",  # sdc-train pose: the generator's frames, the shipped model's clouds
@@ -61,5 +62,5 @@ def tiny_dataset(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def tiny_model_path(tmp_path_factory) -> Path:
-    """The tiny sdcnet-shaped ONNX model (``sdcnet.devtools.models.tiny_model``)."""
+    """The tiny sdcnet-shaped ONNX model (``tests.support.models.tiny_model``)."""
     return tiny_model(tmp_path_factory.mktemp("models"))

@@ -25,12 +25,12 @@ import pytest
 
 from sdcnet.camera import PAPER_CAMERA
 from sdcnet.client.api import Client
-from sdcnet.devtools.serving import running_service
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
 from sdcnet.returns import read_returns_csv
 from sdcnet.runtime import OnnxModel
 from sdcnet.service.settings import shipped_model_path
+from tests.support.serving import running_service
 
 ROOT = Path(__file__).resolve().parent.parent
 STORED = Path(__file__).resolve().parent / "data" / "answers.json"

@@ -21,14 +21,14 @@ from sdcnet.client.api import Client, ServiceError
 from sdcnet.client.cli import main
 from sdcnet.client.outputs import OUTPUT_FILES
 from sdcnet.dataset_format import SampleStore
-from sdcnet.devtools.frames import png_bytes, synthetic_frame, write_dataset
-from sdcnet.devtools.models import TINY_VERSION
-from sdcnet.devtools.serving import running_service
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import read_ply
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.runtime import OnnxModel
+from tests.support.frames import png_bytes, synthetic_frame, write_dataset
+from tests.support.models import TINY_VERSION
+from tests.support.serving import running_service
 
 
 def frame(size: int):

@@ -13,7 +13,8 @@ import time
 import httpx
 import pytest
 
-from sdcnet.devtools.attacks import (
+from sdcnet.npyio import npy_bytes
+from tests.support.attacks import (
     Trickler,
     bright_frame,
     closed_within,
@@ -21,9 +22,8 @@ from sdcnet.devtools.attacks import (
     request_head,
     status_of,
 )
-from sdcnet.devtools.frames import multipart_body, png_bytes, synthetic_frame
-from sdcnet.devtools.serving import service_process
-from sdcnet.npyio import npy_bytes
+from tests.support.frames import multipart_body, png_bytes, synthetic_frame
+from tests.support.serving import service_process
 
 HEAD_TIMEOUT_S = 1.0
 BODY_TIMEOUT_S = 1.0

@@ -11,12 +11,12 @@ from pathlib import Path
 import kubernetes_validate
 import pytest
 import yaml
-from test_docker import stages
 
 from sdcnet.service.app import create_app
 from sdcnet.service.budget import budget
 from sdcnet.service.settings import Settings
 from sdcnet.training.data.cli import parser as sdc_data_parser
+from tests.test_docker import stages
 
 DEPLOY = Path(__file__).resolve().parents[1] / "deploy"
 KUBERNETES = kubernetes_validate.latest_version()

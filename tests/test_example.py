@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from sdcnet.client.outputs import OUTPUT_FILES
-from sdcnet.devtools.serving import running_service
 from sdcnet.pointcloud import read_ply
 from sdcnet.returns import read_returns_csv
 from sdcnet.service.settings import shipped_model_path
+from tests.support.serving import running_service
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = "tdrs"

@@ -24,7 +24,7 @@ import pytest
 import trimesh
 from onnx import TensorProto, helper
 
-from sdcnet.devtools.models import graph_model
+from tests.support.models import graph_model
 
 _MISSING_PROVIDER = next(
     name

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import pytest
 
-from sdcnet.devtools.fuzzing import COMPLETE, POSE, V2_INFER, fuzz_api, fuzz_targets
-from sdcnet.devtools.serving import running_service
+from tests.support.fuzzing import COMPLETE, POSE, V2_INFER, fuzz_api, fuzz_targets
+from tests.support.serving import running_service
 
 MAX_EXAMPLES = 40  # per operation and phase: about 150 requests, a few seconds
 

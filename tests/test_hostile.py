@@ -28,7 +28,10 @@ import httpx
 import numpy as np
 import pytest
 
-from sdcnet.devtools.attacks import (
+from sdcnet.npyio import npy_bytes
+from sdcnet.service.budget import budget
+from sdcnet.service.settings import Settings
+from tests.support.attacks import (
     LIBRARY_HINTS,
     bright_frame,
     csv_returns,
@@ -36,11 +39,8 @@ from sdcnet.devtools.attacks import (
     reset_peak,
     v2_json_zeros,
 )
-from sdcnet.devtools.frames import multipart_body, png_bytes, sample_files, synthetic_frame
-from sdcnet.devtools.serving import memory_kib, service_process
-from sdcnet.npyio import npy_bytes
-from sdcnet.service.budget import budget
-from sdcnet.service.settings import Settings
+from tests.support.frames import multipart_body, png_bytes, sample_files, synthetic_frame
+from tests.support.serving import memory_kib, service_process
 
 V2_INFER = "/v2/models/sdcnet/infer"
 MAX_PIXELS = 1024 * 1024

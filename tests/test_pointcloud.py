@@ -70,7 +70,7 @@ def test_outlier_removal_drops_isolated_points():
 
 def test_outlier_removal_on_a_rendered_spacecraft():
     pytest.importorskip("embreex", reason="renders with the generator: the data extra")
-    from sdcnet.devtools.frames import generated_sample
+    from tests.support.frames import generated_sample
 
     s = generated_sample(256)
     depth, mask = s.depth.copy(), s.depth > 0

@@ -1,5 +1,5 @@
 """``POST /pose`` on the tiny sdcnet-shaped ONNX model (no torch, no generator): a target of
-primitives (``sdcnet.devtools.targets.probe_mesh``), frames of it ray cast at known poses.
+primitives (``tests.support.targets.probe_mesh``), frames of it ray cast at known poses.
 The tiny model's completed depth is coarse (each pixel takes the farthest return around
 it), the returns exact: the search must find the pose from the cloud and the returns must
 make it exact.
@@ -27,9 +27,6 @@ from fastapi.testclient import TestClient
 from sdcnet.client.api import Client, ServiceError
 from sdcnet.client.cli import main as client_main
 from sdcnet.client.form import form_body
-from sdcnet.devtools.frames import png_bytes
-from sdcnet.devtools.serving import running_service
-from sdcnet.devtools.targets import probe_mesh, target_frame, write_targets
 from sdcnet.meshes import load_scaled_mesh
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense, write_returns_csv
@@ -37,6 +34,9 @@ from sdcnet.rigid import Pose, axis_angle, parse_pose, pose_errors
 from sdcnet.service.app import create_app
 from sdcnet.service.pose import POSE_SIGMA_QUANTILE
 from sdcnet.service.settings import Settings
+from tests.support.frames import png_bytes
+from tests.support.serving import running_service
+from tests.support.targets import probe_mesh, target_frame, write_targets
 
 LONGEST_M = 9.0
 #: Within these of the truth: the returns lie exactly on the surface, the target's samples a

@@ -8,7 +8,6 @@ import pytest
 import small_gicp
 import trimesh
 
-from sdcnet.devtools.targets import probe_mesh
 from sdcnet.registration import (
     DEFAULT_CONFIG,
     REASONS,
@@ -28,6 +27,7 @@ from sdcnet.rigid import (
     pose_errors,
     quaternion_from_matrix,
 )
+from tests.support.targets import probe_mesh
 
 
 def visible_samples(mesh: trimesh.Trimesh, pose: Pose, seed: int, cell: float = 0.02):

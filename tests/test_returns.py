@@ -20,7 +20,6 @@ from sdcnet.compact import (
     paste,
     unpack_mask,
 )
-from sdcnet.devtools.frames import synthetic_frame
 from sdcnet.pipeline import resample_sparse
 from sdcnet.returns import (
     ReturnsError,
@@ -30,6 +29,7 @@ from sdcnet.returns import (
     returns_from_dense,
     write_returns_csv,
 )
+from tests.support.frames import synthetic_frame
 
 
 def test_a_dense_map_round_trips_through_the_csv_to_the_millimetre(tmp_path):

@@ -31,9 +31,6 @@ from fastapi.testclient import TestClient
 from sdcnet.calibration import CameraCalibration, Undistorter
 from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Client
-from sdcnet.devtools.frames import png_bytes, synthetic_frame
-from sdcnet.devtools.models import TINY_VERSION
-from sdcnet.devtools.serving import running_service
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project, read_ply, statistical_outliers
@@ -46,6 +43,9 @@ from sdcnet.service.deps import get_engine
 from sdcnet.service.inference import Engine
 from sdcnet.service.routes import ROUTERS
 from sdcnet.service.settings import Settings, get_settings
+from tests.support.frames import png_bytes, synthetic_frame
+from tests.support.models import TINY_VERSION
+from tests.support.serving import running_service
 
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 8 * 2**20

@@ -18,9 +18,6 @@ from tritonclient.utils import InferenceServerException
 from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Client
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
-from sdcnet.devtools.frames import png_bytes, synthetic_frame
-from sdcnet.devtools.fuzzing import fuzz_inputs
-from sdcnet.devtools.serving import running_service
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
@@ -28,6 +25,9 @@ from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.runtime import SPIN_WAIT, OnnxModel
 from sdcnet.service.app import load_model
 from sdcnet.service.settings import Settings
+from tests.support.frames import png_bytes, synthetic_frame
+from tests.support.fuzzing import fuzz_inputs
+from tests.support.serving import running_service
 
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 4 * 2**20

@@ -35,7 +35,7 @@ from benchmarks.hostile.memory import (
 )
 from benchmarks.hostile.overload import OVERLOAD_FRAMES, overload
 from benchmarks.hostile.targets import broken_targets
-from sdcnet.devtools.attacks import huge_integer, nested_json
+from tests.support.attacks import huge_integer, nested_json
 
 #: key -> (what the client sends, what must happen, the attack)
 ATTACKS: dict[str, tuple[str, str, Callable[[Context], Outcome]]] = {

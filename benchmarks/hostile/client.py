@@ -10,9 +10,9 @@ from pathlib import Path
 
 import httpx
 
-from sdcnet.devtools.attacks import bright_frame
-from sdcnet.devtools.frames import multipart_body, png_bytes, synthetic_frame
 from sdcnet.npyio import npy_bytes
+from tests.support.attacks import bright_frame
+from tests.support.frames import multipart_body, png_bytes, synthetic_frame
 
 PEAK_LIMIT_MIB = 512.0  # no request may raise the peak by more over the warm baseline
 READY_LIMIT_MS = 1000.0  # /ready answers within this during every attack

@@ -14,8 +14,8 @@ from benchmarks.hostile.client import (
     frame_files,
     valid,
 )
-from sdcnet.devtools.attacks import Trickler, closed_within, connect, request_head, status_of
-from sdcnet.devtools.frames import multipart_body
+from tests.support.attacks import Trickler, closed_within, connect, request_head, status_of
+from tests.support.frames import multipart_body
 
 CLOSE_LIMIT_S = 30.0  # a half-open or idle connection is closed within this
 WAIT_S = 35.0  # how long the connection attacks wait for the server to close

@@ -20,10 +20,10 @@ from benchmarks.hostile.client import (
     expect_refused,
     frame_files,
 )
-from sdcnet.devtools.attacks import LIBRARY_HINTS, huge_integer, nested_json
-from sdcnet.devtools.frames import synthetic_frame, v2_body
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense
+from tests.support.attacks import LIBRARY_HINTS, huge_integer, nested_json
+from tests.support.frames import synthetic_frame, v2_body
 
 
 def form_intrinsics(fields: dict[str, str], path: str = "/complete") -> Callable:

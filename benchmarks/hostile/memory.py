@@ -23,11 +23,11 @@ from benchmarks.hostile.client import (
     count_statuses,
     expect_refused,
 )
-from sdcnet.devtools.attacks import bright_frame, csv_returns, v2_json_zeros
-from sdcnet.devtools.frames import multipart_body, png_bytes, synthetic_frame, v2_body
-from sdcnet.devtools.serving import memory_kib
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense
+from tests.support.attacks import bright_frame, csv_returns, v2_json_zeros
+from tests.support.frames import multipart_body, png_bytes, synthetic_frame, v2_body
+from tests.support.serving import memory_kib
 
 DEPLOYMENT = Path(__file__).resolve().parent.parent / "deploy" / "deployment.yaml"
 

@@ -14,8 +14,8 @@ import httpx
 import numpy as np
 
 from benchmarks.hostile.client import Context, Outcome, count_statuses
-from sdcnet.devtools.frames import multipart_body, png_bytes, synthetic_frame
 from sdcnet.npyio import npy_bytes
+from tests.support.frames import multipart_body, png_bytes, synthetic_frame
 
 Shot = tuple[int | str, float, float]  # status (or error), seconds, the service's ms
 

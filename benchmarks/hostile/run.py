@@ -5,7 +5,7 @@ with the server's peak memory, ``/ready``'s latency meanwhile and a verdict for 
 
 Starts ``sdc-serve`` on 127.0.0.1 (a free port, 2 onnxruntime threads, every other setting its
 default, a targets folder of one mesh for ``POST /pose``) on the tiny sdcnet-shaped model
-(``sdcnet.devtools.models.tiny_model``: it calls every bright pixel spacecraft, so a bright
+(``tests.support.models.tiny_model``: it calls every bright pixel spacecraft, so a bright
 frame is all foreground, the worst case for the point cloud) or ``--model``. After a warm-up
 (valid frames on every route) the resident memory is the baseline. Then each attack runs in
 turn: the server's peak resident memory is reset (``/proc/PID/clear_refs``) before it and read
@@ -40,13 +40,13 @@ from benchmarks.hostile.client import (
     Outcome,
     frame_files,
 )
-from sdcnet.devtools.attacks import ReadyWatch, reset_peak
-from sdcnet.devtools.frames import png_bytes, synthetic_frame, v2_body
-from sdcnet.devtools.models import tiny_model
-from sdcnet.devtools.serving import memory_kib, service_process
-from sdcnet.devtools.targets import probe_mesh, write_targets
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense
+from tests.support.attacks import ReadyWatch, reset_peak
+from tests.support.frames import png_bytes, synthetic_frame, v2_body
+from tests.support.models import tiny_model
+from tests.support.serving import memory_kib, service_process
+from tests.support.targets import probe_mesh, write_targets
 
 #: Resident memory an attack may leave above the warm baseline (the allocators keep what they
 #: freed, for reuse) before the service is restarted, so that the next attack's peak is its own.

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from benchmarks.hostile.client import Context, Outcome
-from sdcnet.devtools.targets import probe_mesh, write_targets
+from tests.support.targets import probe_mesh, write_targets
 
 
 def broken_targets(kind: str) -> Callable[[Context], Outcome]:

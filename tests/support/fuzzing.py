@@ -13,11 +13,11 @@ import numpy as np
 import trimesh
 
 from sdcnet.camera import PAPER_CAMERA, Intrinsics, IntrinsicsError, check_intrinsics
-from sdcnet.devtools.frames import png_bytes, v2_inputs
-from sdcnet.devtools.targets import write_targets
 from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense
+from tests.support.frames import png_bytes, v2_inputs
+from tests.support.targets import write_targets
 
 COMPLETE = "POST /complete"
 V2_INFER = "POST /v2/models/sdcnet/infer"

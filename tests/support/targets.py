@@ -15,8 +15,8 @@ import trimesh
 
 from sdcnet.camera import PAPER_CAMERA, Intrinsics
 from sdcnet.dataset_format import Sample
-from sdcnet.devtools.frames import beam_grid
 from sdcnet.rigid import Pose
+from tests.support.frames import beam_grid
 
 #: Rays intersected with every triangle at once, per chunk: bounds the memory of ``cast_depth``.
 _RAYS_PER_CHUNK = 2048
@@ -102,7 +102,7 @@ def target_frame(mesh: trimesh.Trimesh, pose: Pose, size: int = 256, seed: int =
     """A frame of ``mesh`` at ``pose`` with the paper camera's optics at ``size`` x ``size``:
     the surface lit by its facing (gray 120-250) on a black sky, and LIDAR returns on the
     beam grid (phase from ``seed``) exactly on the surface. Completed by the tiny model
-    (``sdcnet.devtools.models.tiny_model``), it gives a cloud to register."""
+    (``tests.support.models.tiny_model``), it gives a cloud to register."""
     K = PAPER_CAMERA.intrinsics().scaled(size, size)
     depth, facing = cast_depth(mesh, pose, K)
     gray = np.where(depth > 0, 120 + 130 * facing, 0).astype(np.uint8)

@@ -19,8 +19,9 @@ from urllib.parse import urlsplit
 import httpx
 import numpy as np
 
-from sdcnet.devtools.frames import png_bytes
 from sdcnet.npyio import npy_bytes
+from tests.support.background import BackgroundLoop
+from tests.support.frames import png_bytes
 
 #: What a client library or the Python runtime says that a service should not echo: hints
 #: on how to get round a safety limit, and names of the code behind the service.
@@ -44,7 +45,7 @@ def reset_peak(pid: int) -> None:
 
 
 @dataclass
-class ReadyWatch:
+class ReadyWatch(BackgroundLoop):
     """Polls ``GET /ready`` every ``interval_s`` in a thread while in use; ``max_ms`` is the
     slowest answer (a probe that failed or took over ``timeout_s`` counts as ``timeout_s``)."""
 
@@ -54,13 +55,9 @@ class ReadyWatch:
     latencies_ms: list[float] = field(default_factory=list)
     failures: int = 0
 
-    def __post_init__(self) -> None:
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, daemon=True)
-
-    def _loop(self) -> None:
+    def loop(self, stop: threading.Event) -> None:
         with httpx.Client(base_url=self.url, timeout=self.timeout_s) as http:
-            while not self._stop.is_set():
+            while not stop.is_set():
                 start = time.perf_counter()
                 try:
                     ok = http.get("/ready").status_code == 200
@@ -71,19 +68,11 @@ class ReadyWatch:
                     self.failures += 1
                     elapsed = max(elapsed, self.timeout_s * 1e3)
                 self.latencies_ms.append(elapsed)
-                self._stop.wait(self.interval_s)
+                stop.wait(self.interval_s)
 
     @property
     def max_ms(self) -> float:
         return max(self.latencies_ms, default=0.0)
-
-    def __enter__(self) -> ReadyWatch:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
 
 
 def address(url: str) -> tuple[str, int]:
@@ -133,10 +122,10 @@ def status_of(response: bytes) -> int | None:
     return int(response.split(b" ", 2)[1])
 
 
-class Trickler:
+class Trickler(BackgroundLoop):
     """Connections that each send a request head and then its ``body`` one byte every
-    ``interval_s`` (a slow or hostile upload that stays valid as far as it goes), in a thread,
-    until stopped; records when and how the server ended each one (seconds after its start,
+    ``interval_s`` (a slow or hostile upload that stays valid as far as it goes), in a thread
+    while in use; records when and how the server ended each one (seconds after its start,
     the status it answered)."""
 
     def __init__(
@@ -150,11 +139,9 @@ class Trickler:
             sock.sendall(head)
             sock.setblocking(False)
         self.start = time.monotonic()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, daemon=True)
 
-    def _loop(self) -> None:
-        while not self._stop.wait(self.interval_s) and self.sent < len(self.body):
+    def loop(self, stop: threading.Event) -> None:
+        while not stop.wait(self.interval_s) and self.sent < len(self.body):
             for k, sock in enumerate(self.socks):
                 if self.ended[k] is None:
                     self._poke(k, sock)
@@ -175,13 +162,8 @@ class Trickler:
         except OSError:
             self.ended[k] = (time.monotonic() - self.start, None)
 
-    def __enter__(self) -> Trickler:
-        self._thread.start()
-        return self
-
     def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
+        super().__exit__(*exc)
         for sock in self.socks:
             sock.close()
 

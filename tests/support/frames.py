@@ -90,7 +90,7 @@ def write_dataset(root: Path, splits: dict[str, int], size: int = 64) -> Path:
             write_sample(root / sample.meta["file"], sample)
             metas.append(sample.meta)
             seed += 1
-    info = {"command": f"sdcnet.devtools.frames.write_dataset(splits={splits}, size={size})"}
+    info = {"command": f"tests.support.frames.write_dataset(splits={splits}, size={size})"}
     (root / "dataset.json").write_text(json.dumps(info) + "\n")
     write_manifest(root, metas)
     return root

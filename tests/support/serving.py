@@ -64,7 +64,7 @@ def benchmark_model(path: Path | None, workdir: Path) -> tuple[Path, str]:
         return path, f"`{path}`"
     if shipped_model_path().exists():
         return shipped_model_path(), "the shipped `models/sdcnet.onnx`"
-    from sdcnet.devtools.models import random_model
+    from tests.support.models import random_model
 
     return random_model(workdir), (
         "SDCNet with random weights (`models/sdcnet.onnx` does not exist yet; the "
