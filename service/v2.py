@@ -35,7 +35,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX
+from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX, GivenIntrinsics
 from sdcnet.compact import crop, fp16_residuals, pack_mask
 from sdcnet.formats.v2 import DTYPES, HEADER_LENGTH
 from sdcnet.service.camera import ServiceCamera, camera_frame
@@ -109,6 +109,10 @@ class InferParameters(_Strict):
     binary_data_output: bool = Field(
         False, description="every output as binary data unless its own binary_data says no"
     )
+
+    def intrinsics(self) -> GivenIntrinsics:
+        """The intrinsics these parameters give (pixels); the others are the default's."""
+        return GivenIntrinsics(self.fx, self.fy, self.cx, self.cy)
 
 
 class InputParameters(_Strict):
@@ -383,10 +387,7 @@ def frame_of_request(parsed: ParsedRequest, binary: memoryview, limits: InputLim
         tensors.get("sparse"),
         tensors.get("returns"),
         limits,
-        fx=parameters.fx,
-        fy=parameters.fy,
-        cx=parameters.cx,
-        cy=parameters.cy,
+        intrinsics=parameters.intrinsics(),
         outlier_removal=parameters.outlier_removal,
         max_sigma=parameters.max_sigma,
     )

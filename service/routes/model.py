@@ -77,7 +77,7 @@ async def model_metadata(
         threads=model.threads,
         stride=info.stride,
         work_pixels=info.work_pixels,
-        intrinsics=CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
+        intrinsics=CameraIntrinsics(**K.pinhole_dict()),
         default_intrinsics=SizedIntrinsics(**default.as_dict()),
         camera=None if camera is None else CameraInfo(**camera.describe()),
         metrics=info.metrics,
