@@ -10,7 +10,7 @@ IMREAD_UNCHANGED) only for the four formats accepted, ``.npy`` data are read in 
 parsed a block at a time once its lines are counted. Messages are the service's own: a
 library's words (and its hints on how to lift a limit) stay out of them. The checks on arrays
 (``frame_of``) are the ones the Open Inference Protocol's tensors go through too
-(``sdcnet.service.v2``).
+(``sdcnet.service.v2_decode``).
 """
 
 from __future__ import annotations

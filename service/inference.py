@@ -2,7 +2,7 @@
 worker thread; and ``POST /complete`` from uploaded bytes to answer bytes.
 
 decode (bytes -> validated ``Frame``: ``sdcnet.service.decode`` for the multipart form,
-``sdcnet.service.v2`` for the Open Inference Protocol) -> queue (wait for the model) ->
+``sdcnet.service.v2_decode`` for the Open Inference Protocol) -> queue (wait for the model) ->
 inference (``sdcnet.pipeline.complete``: crop to the LIDAR-bounded region, model, paste back)
 -> encode (point cloud, optional outlier removal, then the protocol's serialisation). Each
 phase is timed. ``complete_frame`` is the one path both protocols share.

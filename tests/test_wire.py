@@ -21,6 +21,7 @@ from sdcnet.compact import depth_from_fp16, paste, unpack_mask
 from sdcnet.devtools.frames import png_bytes, synthetic_frame
 from sdcnet.devtools.fuzzing import fuzz_inputs
 from sdcnet.devtools.serving import running_service
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
@@ -32,7 +33,6 @@ from sdcnet.service.settings import Settings
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 4 * 2**20
 INFER = "/v2/models/sdcnet/infer"
-HEADER_LENGTH = "Inference-Header-Content-Length"
 
 
 @pytest.fixture(scope="module")
