@@ -27,6 +27,7 @@ from urllib.parse import quote
 import cv2
 import numpy as np
 
+from sdcnet.camera import GivenIntrinsics, Intrinsics
 from sdcnet.client import form, protocol
 from sdcnet.client.transport import TRANSPORT_ERRORS, ConnectTimeoutError, Reply, Transport
 from sdcnet.formats import FormatError, npy
@@ -42,13 +43,12 @@ DEFAULT_URL = os.environ.get("SDCNET_URL", "http://127.0.0.1:8000")
 Source = str | Path | bytes | np.ndarray
 
 
-def _given_intrinsics(
-    fx: float | None, fy: float | None, cx: float | None, cy: float | None
-) -> dict[str, float]:
-    """The intrinsics the caller gave (pixels); those left out are the service's defaults (its
-    camera's, ``sdc-serve --camera``, else the model's)."""
-    given = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
-    return {k: float(v) for k, v in given.items() if v is not None}
+def _given(intrinsics: Intrinsics | GivenIntrinsics | None) -> dict[str, float]:
+    """The pinhole values the caller gave, by name, as Python floats (pixels; JSON takes no
+    numpy float32); those left out are the service's defaults (its camera's, ``sdc-serve
+    --camera``, else the model's)."""
+    given = {} if intrinsics is None else intrinsics.pinhole_dict()
+    return {name: float(value) for name, value in given.items()}
 
 
 class ClientError(Exception):
@@ -331,10 +331,7 @@ class Client:
         sparse: Source | None = None,
         *,
         returns: np.ndarray | None = None,
-        fx: float | None = None,
-        fy: float | None = None,
-        cx: float | None = None,
-        cy: float | None = None,
+        intrinsics: Intrinsics | GivenIntrinsics | None = None,
         depth_scale: float | None = None,
         outlier_removal: bool = False,
         max_sigma: float | None = None,
@@ -346,15 +343,17 @@ class Client:
         The LIDAR returns, once: ``sparse``, a float32/float64 (H, W) map in metres (0 = no
         return) as an array, a ``.npy`` file or a 16-bit PNG with ``depth_scale`` (metres per
         unit), or a list as an (N, 3) array or ``.npy`` or a CSV file (``row,col,z_m``); or
-        ``returns``, an (N, 3) array (row, column, Z metres). Intrinsics in pixels; those not
-        given are the service's camera's (``sdc-serve --camera``), else the model's, scaled to
-        the image size. ``max_sigma`` (metres) leaves the points whose sigma is above it out
-        of the cloud (depth, mask and sigma stay whole). ``float16_depth`` halves the depth's
-        bytes at a precision of 8 mm (``sdcnet.compact``); by default the depth is exact.
+        ``returns``, an (N, 3) array (row, column, Z metres). ``intrinsics`` in pixels: the
+        camera's (``Intrinsics``, for this image's size) or some of them (``GivenIntrinsics``);
+        those not given are the service's camera's (``sdc-serve --camera``), else the model's,
+        scaled to the image size. ``max_sigma`` (metres) leaves the points whose sigma is
+        above it out of the cloud (depth, mask and sigma stay whole). ``float16_depth`` halves
+        the depth's bytes at a precision of 8 mm (``sdcnet.compact``); by default the depth is
+        exact.
         """
         image = gray_array(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)
-        parameters: dict[str, Any] = _given_intrinsics(fx, fy, cx, cy)
+        parameters: dict[str, Any] = _given(intrinsics)
         parameters["outlier_removal"] = outlier_removal
         if max_sigma is not None:
             parameters["max_sigma"] = float(max_sigma)
@@ -380,10 +379,7 @@ class Client:
         *,
         returns: np.ndarray | None = None,
         init: Pose | dict | None = None,
-        fx: float | None = None,
-        fy: float | None = None,
-        cx: float | None = None,
-        cy: float | None = None,
+        intrinsics: Intrinsics | GivenIntrinsics | None = None,
         depth_scale: float | None = None,
         outlier_removal: bool = False,
         max_sigma: float | None = None,
@@ -396,7 +392,7 @@ class Client:
         90th percentile of sigma (the service's choice)."""
         image, gray_file = _gray_file(gray)
         listed = returns_list(sparse, returns, image.shape, depth_scale)
-        fields = {k: repr(v) for k, v in _given_intrinsics(fx, fy, cx, cy).items()}
+        fields = {name: repr(value) for name, value in _given(intrinsics).items()}
         fields["outlier_removal"] = "true" if outlier_removal else "false"
         if max_sigma is not None:
             fields["max_sigma"] = repr(float(max_sigma))

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from sdcnet.camera import GivenIntrinsics
 from sdcnet.client.api import (
     Client,
     ClientError,
@@ -42,17 +43,32 @@ from sdcnet.dataset_format import SampleStore, read_sample
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 SPARSE_PNG_SUFFIX = ".sparse.png"
-_OPTIONS = ("depth_scale", "fx", "fy", "cx", "cy")
 
 
 @dataclass(frozen=True)
 class Pair:
-    """One frame to complete. A dataset sample has ``gray == sparse ==`` its ``.npz``."""
+    """One frame to complete, with the depth scale (metres per unit of a 16-bit PNG map) and
+    the intrinsics (pixels) of its manifest line. A dataset sample has ``gray == sparse ==``
+    its ``.npz``."""
 
     name: str
     gray: Path
     sparse: Path
-    options: dict[str, float] = field(default_factory=dict)  # depth_scale, fx, fy, cx, cy
+    depth_scale: float | None = None
+    intrinsics: GivenIntrinsics = field(default_factory=GivenIntrinsics)
+
+    def options(self, defaults: dict[str, Any]) -> dict[str, Any]:
+        """``Client.complete``'s and ``Client.pose``'s keyword arguments for this pair: the
+        ``defaults`` (the command line's ``depth_scale``, ``intrinsics``, ``max_sigma``) with
+        the pair's own values in their place, value by value; a default depth scale only for
+        a PNG map (the others hold metres)."""
+        options = dict(defaults)
+        if self.sparse.suffix.lower() != ".png":
+            options.pop("depth_scale", None)
+        if self.depth_scale is not None:
+            options["depth_scale"] = self.depth_scale
+        options["intrinsics"] = self.intrinsics.over(options.get("intrinsics") or GivenIntrinsics())
+        return options
 
     def sources(self) -> tuple[Source, Source]:
         """What ``Client.complete`` takes: file bytes, or the arrays of a dataset sample."""
@@ -96,11 +112,12 @@ def _manifest_pairs(manifest: Path, split: str | None) -> list[Pair]:
             if split is not None and record.get("split") != split:
                 continue
             gray, sparse = root / record["gray"], root / record["sparse"]
-            options = {k: float(record[k]) for k in _OPTIONS if record.get(k) is not None}
+            scale = None if record.get("depth_scale") is None else float(record["depth_scale"])
+            intrinsics = GivenIntrinsics.from_dict(record)
         except (ValueError, KeyError, TypeError) as exc:
             raise InputError(f"{manifest} line {number}: not a pair ({exc})") from exc
         name = str(record.get("id") or Path(gray).stem).replace("/", "_")
-        pairs.append(Pair(name, gray, sparse, options))
+        pairs.append(Pair(name, gray, sparse, scale, intrinsics))
     return pairs
 
 
@@ -155,20 +172,18 @@ def run_batch(
     out: Path,
     concurrency: int = 2,
     outlier_removal: bool = False,
-    defaults: dict[str, float] | None = None,
+    defaults: dict[str, Any] | None = None,
     progress: bool = True,
     float16_depth: bool = False,
 ) -> BatchReport:
     """Complete every pair, at most ``concurrency`` requests at once, writing ``out/<name>/``.
-    ``defaults`` (depth_scale, intrinsics) apply where a pair does not set its own."""
+    ``defaults`` (depth_scale, intrinsics, max_sigma) apply where a pair does not set its own
+    (``Pair.options``)."""
     report = BatchReport()
 
     def one(pair: Pair) -> Completion:
         gray, sparse = pair.sources()
-        options = dict(defaults or {})
-        if pair.sparse.suffix.lower() != ".png":
-            options.pop("depth_scale", None)  # a scale is for 16-bit PNG maps only
-        options.update(pair.options)
+        options = pair.options(defaults or {})
         image = gray_array(gray)
         result = client.complete(
             image, sparse, outlier_removal=outlier_removal, float16_depth=float16_depth, **options

@@ -21,7 +21,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
+from sdcnet.camera import PINHOLE_FIELDS, GivenIntrinsics
 from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.client.api import (
     DEFAULT_URL,
@@ -55,7 +57,7 @@ def _connection_options() -> argparse.ArgumentParser:
 
 def _frame_options() -> argparse.ArgumentParser:
     frame = argparse.ArgumentParser(add_help=False)
-    for name in ("fx", "fy", "cx", "cy"):
+    for name in PINHOLE_FIELDS:
         frame.add_argument(
             f"--{name}",
             type=float,
@@ -149,9 +151,14 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def _frame_kwargs(args: argparse.Namespace) -> dict[str, float]:
-    names = ("fx", "fy", "cx", "cy", "depth_scale", "max_sigma")
-    return {k: getattr(args, k) for k in names if getattr(args, k) is not None}
+def frame_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """The frame options of the command line, as ``Client.complete`` and ``Client.pose`` take
+    them (and ``Pair.options`` as its defaults)."""
+    return {
+        "intrinsics": GivenIntrinsics.from_dict(vars(args)),
+        "depth_scale": args.depth_scale,
+        "max_sigma": args.max_sigma,
+    }
 
 
 def cmd_infer(client: Client, args: argparse.Namespace) -> int:
@@ -161,7 +168,7 @@ def cmd_infer(client: Client, args: argparse.Namespace) -> int:
         args.sparse,  # a file: the client reads it (a CSV's errors name it, line and return)
         outlier_removal=args.outlier_removal,
         float16_depth=args.float16_depth,
-        **_frame_kwargs(args),
+        **frame_kwargs(args),
     )
     written = write_outputs(args.out, gray, result)
     print(summary(result, client.url, written))
@@ -181,7 +188,7 @@ def cmd_batch(client: Client, args: argparse.Namespace) -> int:
         concurrency=args.concurrency,
         outlier_removal=args.outlier_removal,
         float16_depth=args.float16_depth,
-        defaults=_frame_kwargs(args),
+        defaults=frame_kwargs(args),
         progress=not args.no_progress,
     )
     print(report.summary())
@@ -200,7 +207,7 @@ def cmd_pose(client: Client, args: argparse.Namespace) -> int:
         args.target,
         init=init,
         outlier_removal=args.outlier_removal,
-        **_frame_kwargs(args),
+        **frame_kwargs(args),
     )
     points = client.target_points(args.target)
     written = write_pose_outputs(args.out, gray_for_display(gray_array(gray)), answer, points)
@@ -220,7 +227,7 @@ def cmd_track(client: Client, args: argparse.Namespace) -> int:
     with path.open("w") as poses:
         for pair in pairs:
             gray, sparse = pair.sources()
-            options = {**_frame_kwargs(args), **pair.options}
+            options = pair.options(frame_kwargs(args))
             answer = tracker.pose(gray, sparse, outlier_removal=args.outlier_removal, **options)
             poses.write(json.dumps({"frame": pair.name, **answer.answer}) + "\n")
             print(track_line(pair.name, answer))

@@ -66,9 +66,9 @@ def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray
 
 def point_sigma(result: Completion) -> np.ndarray:
     """float32 (N,) metres: the sigma of each point, read at the pixel it was made from."""
-    K, (height, width) = result.meta["intrinsics"], result.depth.shape
-    intrinsics = Intrinsics(K["fx"], K["fy"], K["cx"], K["cy"], width, height)
-    rows, cols = point_pixels(result.points, intrinsics)
+    height, width = result.depth.shape
+    K = Intrinsics(**result.meta["intrinsics"], width=width, height=height)
+    rows, cols = point_pixels(result.points, K)
     return result.sigma[rows, cols]
 
 

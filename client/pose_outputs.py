@@ -25,8 +25,9 @@ PREVIEW_ALTERNATIVES = 2
 def answer_intrinsics(answer: PoseAnswer) -> Intrinsics:
     """The intrinsics the service used for this frame (pixels)."""
     completion = answer.answer["completion"]
-    K = completion["intrinsics"]
-    return Intrinsics(K["fx"], K["fy"], K["cx"], K["cy"], completion["width"], completion["height"])
+    return Intrinsics(
+        **completion["intrinsics"], width=completion["width"], height=completion["height"]
+    )
 
 
 def pose_preview(gray: np.ndarray, answer: PoseAnswer, points: np.ndarray, tile: int = 320):

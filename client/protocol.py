@@ -18,13 +18,13 @@ from typing import Any
 
 import numpy as np
 
+from sdcnet.camera import PINHOLE_FIELDS
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
 from sdcnet.formats.v2 import DTYPES, HEADER_LENGTH
 
 PATH = "/v2/models/sdcnet/infer"
 _GRAY_DATATYPES = {DTYPES[name]: name for name in ("UINT8", "UINT16")}
 _TIMINGS = ("decode_ms", "queue_ms", "inference_ms", "encode_ms")
-_INTRINSICS = ("fx", "fy", "cx", "cy")
 
 
 class AnswerError(ValueError):
@@ -108,10 +108,10 @@ def _full_frame(array: np.ndarray, output: dict, shape: tuple[int, int]) -> np.n
 def summary(document: dict) -> dict[str, Any]:
     """The answer's parameters as ``POST /complete``'s summary (nested intrinsics, timings)."""
     p = document["parameters"]
-    nested = set(_TIMINGS) | set(_INTRINSICS)
+    nested = set(_TIMINGS) | set(PINHOLE_FIELDS)
     meta = {k: v for k, v in p.items() if k not in nested}
     meta["model_version"] = document["model_version"]
-    meta["intrinsics"] = {k: p[k] for k in _INTRINSICS}
+    meta["intrinsics"] = {k: p[k] for k in PINHOLE_FIELDS}
     meta["timings"] = {k: p[k] for k in _TIMINGS}
     return meta
 

@@ -26,7 +26,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
+from sdcnet.camera import PINHOLE_FIELDS, Intrinsics, IntrinsicsError, check_intrinsics
 
 #: Distortion models taken, and how many coefficients each has (OpenCV's order k1, k2, p1, p2,
 #: k3, k4, k5, k6; plumb_bob is ROS's name for the first 4 or 5, rational_polynomial for 8).
@@ -40,7 +40,6 @@ ASPECT_TOLERANCE = 0.01
 _MATRIX_KEYS = ("camera_matrix", "cameraMatrix", "K", "k")
 _DISTORTION_KEYS = ("distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "d", "distortion")
 _SIZE_KEYS = (("image_width", "image_height"), ("width", "height"))
-_PINHOLE_KEYS = ("fx", "fy", "cx", "cy")
 _OPENCV_HEADERS = ("%YAML", "<?xml", "<opencv_storage>")
 
 
@@ -260,13 +259,13 @@ def _camera_matrix(fields: dict, path: Path) -> np.ndarray:
     cx, cy."""
     key = _first_key(fields, _MATRIX_KEYS)
     if key is None:
-        if not all(name in fields for name in _PINHOLE_KEYS):
+        if not all(name in fields for name in PINHOLE_FIELDS):
             raise _error(
                 path,
                 "has no camera matrix: expected camera_matrix (OpenCV, ROS camera_info), k or K "
                 "(ROS CameraInfo), or fx, fy, cx and cy (pixels)",
             )
-        fx, fy, cx, cy = (_number(fields[name], name, path) for name in _PINHOLE_KEYS)
+        fx, fy, cx, cy = (_number(fields[name], name, path) for name in PINHOLE_FIELDS)
         return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
     K = _values(fields[key], key, path)
     if K.shape != (3, 3) and not (K.ndim == 1 and K.size == 9):
@@ -282,13 +281,11 @@ def _intrinsics(K: np.ndarray, width: int, height: int, path: Path) -> Intrinsic
     if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
         rows = "; ".join(" ".join(f"{v:g}" for v in row) for row in K)
         raise _error(path, f"is not a camera matrix (fx 0 cx; 0 fy cy; 0 0 1): {rows}")
-    fx, fy, cx, cy, skew = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
-    if abs(skew) > 1e-9 * abs(fx):
+    skew = K[0, 1]
+    if abs(skew) > 1e-9 * abs(K[0, 0]):
         raise _error(path, f"the camera matrix has a skew of {skew:g}; sdcnet takes none")
     try:
-        return check_intrinsics(
-            Intrinsics(float(fx), float(fy), float(cx), float(cy), width, height)
-        )
+        return check_intrinsics(Intrinsics.from_matrix(K, width, height))
     except IntrinsicsError as exc:
         raise _error(path, str(exc)) from None
 

@@ -10,7 +10,9 @@ Conventions used everywhere in sdcnet:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -49,6 +51,11 @@ class LidarSpec:
     dropout: float = 0.02
 
 
+#: The names of the four pinhole values (pixels), the same wherever they travel: form fields,
+#: JSON keys, the Open Inference Protocol's parameters, camera files, command-line flags.
+PINHOLE_FIELDS = ("fx", "fy", "cx", "cy")
+
+
 @dataclass(frozen=True)
 class Intrinsics:
     """Pinhole intrinsics in pixels for an image of ``width`` x ``height``."""
@@ -59,6 +66,11 @@ class Intrinsics:
     cy: float
     width: int
     height: int
+
+    @classmethod
+    def from_matrix(cls, K: np.ndarray, width: int, height: int) -> Intrinsics:
+        """The intrinsics of a 3 x 3 camera matrix (its skew, if any, is not kept)."""
+        return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), width, height)
 
     def scaled(self, width: int, height: int) -> Intrinsics:
         """The same optics seen by a sensor resampled to ``width`` x ``height`` pixels."""
@@ -87,15 +99,59 @@ class Intrinsics:
         z = points[..., 2]
         return self.fx * points[..., 0] / z + self.cx, self.fy * points[..., 1] / z + self.cy
 
+    def pinhole_dict(self) -> dict[str, float]:
+        """fx, fy, cx, cy by name: what the service's answers carry beside the frame's size,
+        and what a request sends to give them all."""
+        return {name: getattr(self, name) for name in PINHOLE_FIELDS}
+
     def as_dict(self) -> dict[str, float | int]:
-        return {
-            "fx": self.fx,
-            "fy": self.fy,
-            "cx": self.cx,
-            "cy": self.cy,
-            "width": self.width,
-            "height": self.height,
-        }
+        """Every field by name (JSON: model metadata, dataset samples, camera descriptions);
+        ``Intrinsics(**d)`` reads it back."""
+        return {**self.pinhole_dict(), "width": self.width, "height": self.height}
+
+    def describe(self, decimals: int = 3) -> str:
+        """The four values as text for logs and file headers, ``decimals`` places of a pixel:
+        "fx 2000.000 fy 2000.000 cx 127.500 cy 127.500"."""
+        return " ".join(
+            f"{name} {value:.{decimals}f}" for name, value in self.pinhole_dict().items()
+        )
+
+
+#: What ``GivenIntrinsics.over`` fills in: whole intrinsics, or other given values.
+_Base = TypeVar("_Base", Intrinsics, "GivenIntrinsics")
+
+
+@dataclass(frozen=True)
+class GivenIntrinsics:
+    """The pinhole values (pixels) a request gives, each optional: a value left out is the
+    default's (the service's camera, else its model's, at the frame's size), value by value."""
+
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> GivenIntrinsics:
+        """The values of ``PINHOLE_FIELDS`` in a form, JSON object, manifest line or parsed
+        command line (``vars(args)``) that are there and not None, as floats; other keys are
+        ignored. Raises ``ValueError`` or ``TypeError`` for a value that is not a number."""
+        given = {name: values.get(name) for name in PINHOLE_FIELDS}
+        return cls(**{name: float(value) for name, value in given.items() if value is not None})
+
+    def pinhole_dict(self) -> dict[str, float]:
+        """The values given, by name: a form's fields, the v2 request's parameters."""
+        given = {name: getattr(self, name) for name in PINHOLE_FIELDS}
+        return {name: value for name, value in given.items() if value is not None}
+
+    @property
+    def whole(self) -> bool:
+        """All four are given: a camera's complete intrinsics, which need no default."""
+        return len(self.pinhole_dict()) == len(PINHOLE_FIELDS)
+
+    def over(self, base: _Base) -> _Base:
+        """``base`` with each value given here in place of its own."""
+        return replace(base, **self.pinhole_dict())
 
 
 PAPER_CAMERA = CameraSpec()
@@ -119,8 +175,7 @@ def check_intrinsics(K: Intrinsics) -> Intrinsics:
     each focal length between the one of a ``MAX_FIELD_OF_VIEW_DEG`` field of view along its
     side and ``MAX_FOCAL_PX``, the principal point within half an image of the image. The one
     check of every route of the service and of camera files; raises ``IntrinsicsError``."""
-    for name in ("fx", "fy", "cx", "cy"):
-        value = getattr(K, name)
+    for name, value in K.pinhole_dict().items():
         if not math.isfinite(value):
             raise IntrinsicsError(f"{name} must be a finite number of pixels, got {value}")
     if K.fx <= 0 or K.fy <= 0:

@@ -60,14 +60,11 @@ def configured_camera(settings: Settings) -> ServiceCamera | None:
     calibration = load_camera_file(settings.camera)
     K = calibration.intrinsics
     logger.info(
-        "camera %s: %d x %d, fx %.2f, fy %.2f, cx %.2f, cy %.2f px, %s%s",
+        "camera %s: %d x %d, %s px, %s%s",
         calibration.source,
         K.width,
         K.height,
-        K.fx,
-        K.fy,
-        K.cx,
-        K.cy,
+        K.describe(decimals=2),
         calibration.model,
         f" {list(calibration.distortion)} (frames are undistorted)"
         if calibration.distortion
@@ -87,7 +84,7 @@ def camera_frame(frame: Frame, camera: ServiceCamera | None) -> Frame:
     try:
         calibration = camera.calibration.at_size(width, height)
     except CalibrationError as exc:
-        if None not in (frame.fx, frame.fy, frame.cx, frame.cy):
+        if frame.intrinsics.whole:
             return frame
         raise ApiError(
             422,

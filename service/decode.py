@@ -10,19 +10,19 @@ IMREAD_UNCHANGED) only for the four formats accepted, ``.npy`` data are read in 
 parsed a block at a time once its lines are counted. Messages are the service's own: a
 library's words (and its hints on how to lift a limit) stay out of them. The checks on arrays
 (``frame_of``) are the ones the Open Inference Protocol's tensors go through too
-(``sdcnet.service.v2``).
+(``sdcnet.service.v2_decode``).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
-from sdcnet.camera import Intrinsics
+from sdcnet.camera import GivenIntrinsics, Intrinsics
 from sdcnet.formats import FormatError, npy
 from sdcnet.formats.image_header import ImageHeader, check_decoding_work, read_header
 from sdcnet.formats.sparse import depth_from_png16, sparse_format
@@ -50,17 +50,14 @@ class InputLimits:
 @dataclass(frozen=True)
 class CompletionRequest:
     """The fields of one ``POST /complete``: file bytes (``sparse`` or ``returns``, one of
-    the two), intrinsics in pixels (``None`` = the model's, scaled), ``max_sigma`` in metres
-    (``None``: no limit), the answer's format."""
+    the two), the intrinsics given (pixels; those not given are the default's), ``max_sigma``
+    in metres (``None``: no limit), the answer's format."""
 
     gray: bytes
     sparse: bytes | None = None
     returns: bytes | None = None
     depth_scale: float | None = None
-    fx: float | None = None
-    fy: float | None = None
-    cx: float | None = None
-    cy: float | None = None
+    intrinsics: GivenIntrinsics = field(default_factory=GivenIntrinsics)
     outlier_removal: bool = False
     max_sigma: float | None = None
     format: ResponseFormat = ResponseFormat.json
@@ -69,17 +66,15 @@ class CompletionRequest:
 @dataclass(frozen=True)
 class Frame:
     """One request's validated inputs, whatever protocol brought them: gray uint8/uint16
-    (H, W); sparse float32 (H, W) metres, 0 = no return, at least one return; intrinsics in
-    pixels, ``None`` = the default: ``camera``, the configured camera's at the frame's size
-    (``sdcnet.service.camera``), else the model's, scaled to the image; ``max_sigma``, metres:
-    points whose depth's uncertainty is above it leave the cloud (``None``: no limit)."""
+    (H, W); sparse float32 (H, W) metres, 0 = no return, at least one return; the intrinsics
+    given (pixels), each value not given the default's: ``camera``, the configured camera's at
+    the frame's size (``sdcnet.service.camera``), else the model's, scaled to the image;
+    ``max_sigma``, metres: points whose depth's uncertainty is above it leave the cloud
+    (``None``: no limit)."""
 
     gray: np.ndarray
     sparse: np.ndarray
-    fx: float | None = None
-    fy: float | None = None
-    cx: float | None = None
-    cy: float | None = None
+    intrinsics: GivenIntrinsics = field(default_factory=GivenIntrinsics)
     outlier_removal: bool = False
     max_sigma: float | None = None
     camera: Intrinsics | None = None
@@ -127,9 +122,7 @@ def decode_form(req: CompletionRequest, limits: InputLimits) -> Frame:
         returns = decode_returns(req.returns, most, (header.width, header.height))
         gray = decode_gray(req.gray, limits.max_pixels, header)
         sparse = sparse_from_returns(returns, gray.shape)
-    return Frame(
-        gray, sparse, req.fx, req.fy, req.cx, req.cy, req.outlier_removal, max_sigma=max_sigma
-    )
+    return Frame(gray, sparse, req.intrinsics, req.outlier_removal, max_sigma=max_sigma)
 
 
 def frame_of(
@@ -141,7 +134,7 @@ def frame_of(
 ) -> Frame:
     """The frame of arrays already in memory (Open Inference Protocol tensors): gray uint8 or
     uint16 (H, W), and a float32 sparse map (H, W) or float32 returns (N, 3), checked as the
-    form's files are; ``options`` are ``Frame``'s intrinsics, ``outlier_removal`` and
+    form's files are; ``options`` are ``Frame``'s ``intrinsics``, ``outlier_removal`` and
     ``max_sigma``."""
     check_max_sigma(options.get("max_sigma"))
     height, width = gray.shape

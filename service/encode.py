@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from sdcnet.camera import Intrinsics
 from sdcnet.pointcloud import ply_header, ply_vertices
 from sdcnet.service.schemas import CompletionSummary, FrameSummary, ResponseFormat
 from sdcnet.service.spool import Spool
@@ -117,8 +118,8 @@ PLY_PROPERTIES = ("sigma",)
 class _Ply:
     """The vertices are interleaved (x, y, z, sigma) a slice of ``SLICE_BYTES`` at a time."""
 
-    def __init__(self, points: np.ndarray, sigma: np.ndarray, frame: FrameSummary, spool: Spool):
-        spool.write(ply_header(len(points), ply_comments(frame), PLY_PROPERTIES))
+    def __init__(self, points: np.ndarray, sigma: np.ndarray, comments: list[str], spool: Spool):
+        spool.write(ply_header(len(points), comments, PLY_PROPERTIES))
         step = max(1, SLICE_BYTES // (4 * (3 + len(PLY_PROPERTIES))))
         for start in range(0, len(points), step):
             rows = ply_vertices(points[start : start + step], (sigma[start : start + step],))
@@ -128,16 +129,15 @@ class _Ply:
         pass  # the header said all there is to say
 
 
-def ply_comments(frame: FrameSummary) -> list[str]:
-    """Header comments of a PLY answer: frame, units and provenance."""
-    k = frame.intrinsics
+def ply_comments(frame: FrameSummary, K: Intrinsics) -> list[str]:
+    """Header comments of a PLY answer: frame, units and provenance (``K``: the intrinsics
+    the points were back-projected with)."""
     return [
         "sdcnet point cloud: camera frame (x right, y down, z forward), metres",
         "sigma: the depth's 1-sigma uncertainty, metres",
         f"model_version {frame.model_version}",
         f"provider {frame.provider}",
-        f"image {frame.width} x {frame.height}, fx {k.fx:.3f} fy {k.fy:.3f} "
-        f"cx {k.cx:.3f} cy {k.cy:.3f}",
+        f"image {K.width} x {K.height}, {K.describe()}",
         f"outliers_removed {frame.outliers_removed}",
         f"uncertain_removed {frame.uncertain_removed}",
     ]
@@ -148,7 +148,8 @@ def encode(fmt: ResponseFormat, done: Completed, frame: FrameSummary, spool: Spo
     metres, mask uint8 (H, W), points float32 (N, 3) metres, sigma float32 (H, W) metres (PLY:
     each point's); ``frame``: the summary without timings (the PLY header's)."""
     if fmt is ResponseFormat.ply:
-        return _Ply(done.points, done.point_sigma, frame, spool)
+        comments = ply_comments(frame, done.intrinsics)
+        return _Ply(done.points, done.point_sigma, comments, spool)
     mask = done.mask.view(np.uint8)
     arrays = {"depth": done.depth, "mask": mask, "points": done.points, "sigma": done.sigma}
     if fmt is ResponseFormat.json:

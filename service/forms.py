@@ -11,7 +11,7 @@ from fastapi import Depends, File, Form, Request, UploadFile
 from fastapi.dependencies.models import Dependant
 from pydantic import WithJsonSchema
 
-from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX
+from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX, GivenIntrinsics
 from sdcnet.service.decode import CompletionRequest
 from sdcnet.service.errors import ApiError
 
@@ -129,10 +129,7 @@ async def frame_form(
         sparse=None if sparse is None else await sparse.read(),
         returns=None if returns is None else await returns.read(),
         depth_scale=depth_scale,
-        fx=fx,
-        fy=fy,
-        cx=cx,
-        cy=cy,
+        intrinsics=GivenIntrinsics(fx, fy, cx, cy),
         outlier_removal=outlier_removal,
         max_sigma=max_sigma,
     )

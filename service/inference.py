@@ -2,7 +2,7 @@
 worker thread; and ``POST /complete`` from uploaded bytes to answer bytes.
 
 decode (bytes -> validated ``Frame``: ``sdcnet.service.decode`` for the multipart form,
-``sdcnet.service.v2`` for the Open Inference Protocol) -> queue (wait for the model) ->
+``sdcnet.service.v2_decode`` for the Open Inference Protocol) -> queue (wait for the model) ->
 inference (``sdcnet.pipeline.complete``: crop to the LIDAR-bounded region, model, paste back)
 -> encode (point cloud, optional outlier removal, then the protocol's serialisation). Each
 phase is timed. ``complete_frame`` is the one path both protocols share.
@@ -165,7 +165,7 @@ class Completed:
             provider=model.provider,
             width=K.width,
             height=K.height,
-            intrinsics=CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
+            intrinsics=CameraIntrinsics(**K.pinhole_dict()),
             returns=self.returns,
             foreground_px=int(np.count_nonzero(self.mask)),
             point_count=len(self.points),
@@ -183,15 +183,7 @@ def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Fram
     (``frame.camera``, at the image's size), else the model's ``default`` scaled to the
     image. 422 ``invalid_intrinsics`` for values that cannot describe the frame
     (``sdcnet.camera.check_intrinsics``, the one check of every route)."""
-    base = frame.camera or default.scaled(width, height)
-    K = Intrinsics(
-        base.fx if frame.fx is None else frame.fx,
-        base.fy if frame.fy is None else frame.fy,
-        base.cx if frame.cx is None else frame.cx,
-        base.cy if frame.cy is None else frame.cy,
-        width,
-        height,
-    )
+    K = frame.intrinsics.over(frame.camera or default.scaled(width, height))
     try:
         return check_intrinsics(K)
     except IntrinsicsError as exc:

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from sdcnet.camera import PAPER_CAMERA
+from sdcnet.camera import PAPER_CAMERA, GivenIntrinsics, Intrinsics
 
 
 def test_intrinsics_derive_from_table_1():
@@ -32,3 +32,15 @@ def test_project_inverts_pixel_rays():
     pu, pv = K.project(points)
     np.testing.assert_allclose(pu, u)
     np.testing.assert_allclose(pv, v)
+
+
+def test_given_intrinsics_fill_in_value_by_value():
+    K = PAPER_CAMERA.intrinsics().scaled(256, 256)
+    given = GivenIntrinsics.from_dict({"fx": "900", "cy": 100, "cx": None, "width": 7})
+    assert given == GivenIntrinsics(fx=900.0, cy=100.0)
+    assert given.pinhole_dict() == {"fx": 900.0, "cy": 100.0}
+    assert given.over(K) == Intrinsics(900.0, K.fy, K.cx, 100.0, 256, 256)
+    assert GivenIntrinsics(cx=5.0).over(given) == GivenIntrinsics(fx=900.0, cx=5.0, cy=100.0)
+    assert not given.whole and GivenIntrinsics.from_dict(K.as_dict()).whole
+    assert Intrinsics(**K.as_dict()) == Intrinsics.from_matrix(K.matrix(), 256, 256) == K
+    assert K.describe(1) == f"fx {K.fx:.1f} fy {K.fy:.1f} cx 127.5 cy 127.5"

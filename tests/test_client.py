@@ -17,8 +17,10 @@ import httpx
 import numpy as np
 import pytest
 
+from sdcnet.camera import GivenIntrinsics
 from sdcnet.client.api import Client, ServiceError
-from sdcnet.client.cli import main
+from sdcnet.client.batch import find_pairs
+from sdcnet.client.cli import frame_kwargs, main, parser
 from sdcnet.client.outputs import OUTPUT_FILES
 from sdcnet.dataset_format import SampleStore
 from sdcnet.npyio import npy_bytes
@@ -289,6 +291,27 @@ def test_batch_of_a_manifest_and_of_a_dataset_split(url, frame_files, tiny_model
     depth = np.load(out / test_ids[0] / "depth.npy")
     assert np.count_nonzero(depth) > 0
     np.testing.assert_allclose(depth, answer.depth, atol=1e-4)
+
+
+def test_a_pairs_own_values_replace_the_command_lines_one_by_one(tmp_path):
+    manifest = tmp_path / "pairs.jsonl"
+    lines = [
+        {"gray": "a.png", "sparse": "a.npy", "fx": 500, "cy": 60.5},
+        {"gray": "b.png", "sparse": "b.sparse.png", "depth_scale": 0.001},
+    ]
+    manifest.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    first, second = find_pairs(manifest)
+    argv = ["infer", "g.png", "s.npy", "--fx", "900", "--fy", "910", "--depth-scale", "0.01"]
+    defaults = frame_kwargs(parser().parse_args(argv))
+    assert first.options(defaults) == {
+        "intrinsics": GivenIntrinsics(fx=500.0, fy=910.0, cy=60.5),
+        "max_sigma": None,  # and no depth scale: a .npy map holds metres
+    }
+    assert second.options(defaults) == {
+        "intrinsics": GivenIntrinsics(fx=900.0, fy=910.0),
+        "depth_scale": 0.001,
+        "max_sigma": None,
+    }
 
 
 def test_the_client_imports_no_torch_onnxruntime_fastapi_or_httpx():

@@ -18,6 +18,7 @@ from tritonclient.utils import InferenceServerException
 from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Client
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
+from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
@@ -32,7 +33,6 @@ from tests.support.serving import running_service
 MAX_PIXELS = 1024 * 1024
 MAX_UPLOAD_BYTES = 4 * 2**20
 INFER = "/v2/models/sdcnet/infer"
-HEADER_LENGTH = "Inference-Header-Content-Length"
 
 
 @pytest.fixture(scope="module")

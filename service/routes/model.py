@@ -6,7 +6,6 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from sdcnet import __version__
-from sdcnet.service import v2
 from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep, TargetsDep
 from sdcnet.service.errors import ERROR_RESPONSES, V2_ERROR_RESPONSES
 from sdcnet.service.schemas import (
@@ -18,6 +17,7 @@ from sdcnet.service.schemas import (
     TargetInfo,
     TensorMetadata,
 )
+from sdcnet.service.v2_schemas import INPUTS, OUTPUTS
 
 router = APIRouter(tags=["model"])
 
@@ -33,7 +33,7 @@ _DESCRIPTIONS = {
 
 
 def _tensors(specs: dict) -> list[TensorMetadata]:
-    """Metadata of the protocol's tensors (``sdcnet.service.v2.INPUTS`` / ``OUTPUTS``)."""
+    """Metadata of the protocol's tensors (``sdcnet.service.v2_schemas.INPUTS`` / ``OUTPUTS``)."""
     return [
         TensorMetadata(
             name=name,
@@ -70,14 +70,14 @@ async def model_metadata(
         name=MODEL_NAME,
         versions=[info.version],
         platform=model.platform,
-        inputs=_tensors(v2.INPUTS),
-        outputs=_tensors(v2.OUTPUTS),
+        inputs=_tensors(INPUTS),
+        outputs=_tensors(OUTPUTS),
         version=info.version,
         provider=model.provider,
         threads=model.threads,
         stride=info.stride,
         work_pixels=info.work_pixels,
-        intrinsics=CameraIntrinsics(fx=K.fx, fy=K.fy, cx=K.cx, cy=K.cy),
+        intrinsics=CameraIntrinsics(**K.pinhole_dict()),
         default_intrinsics=SizedIntrinsics(**default.as_dict()),
         camera=None if camera is None else CameraInfo(**camera.describe()),
         metrics=info.metrics,

@@ -3,8 +3,9 @@ extension (``sdcnet.service.v2``), so that ``tritonclient.http`` and KServe clie
 they are.
 
 The body is read whole and parsed here, not by FastAPI: its binary part is sliced into arrays
-without a copy, and its JSON header is validated by ``sdcnet.service.v2.InferenceRequest``
-(whose schema the OpenAPI document shows), as FastAPI's docs do for a custom body.
+without a copy, and its JSON header is validated by ``sdcnet.service.v2_schemas``'s
+``InferenceRequest`` (whose schema the OpenAPI document shows), as FastAPI's docs do for a
+custom body.
 """
 
 from __future__ import annotations
@@ -19,15 +20,16 @@ from sdcnet.service.deps import MODEL_NAME, CameraDep, EngineDep, SettingsDep, i
 from sdcnet.service.errors import V2_ERROR_RESPONSES, ApiError
 from sdcnet.service.inference import SERVER_TIMING_HEADER
 from sdcnet.service.spool import SpooledResponse
+from sdcnet.service.v2_schemas import InferenceRequest, InferenceResponse
 
 router = APIRouter(tags=["open inference protocol v2"])
 
 _BINARY_BODY = (
     "the JSON header (this schema), then the raw little-endian bytes of every input that "
-    "gives binary_data_size, in the order of inputs; the Inference-Header-Content-Length "
+    f"gives binary_data_size, in the order of inputs; the {HEADER_LENGTH} "
     "header gives the JSON header's length in bytes"
 )
-_REQUEST_SCHEMA = v2.InferenceRequest.model_json_schema(ref_template="#/components/schemas/{model}")
+_REQUEST_SCHEMA = InferenceRequest.model_json_schema(ref_template="#/components/schemas/{model}")
 #: The request's schema and the models it uses, for the OpenAPI document's components (their
 #: references point there); ``sdcnet.service.app`` adds them.
 OPENAPI_SCHEMAS = {"InferenceRequest": _REQUEST_SCHEMA, **_REQUEST_SCHEMA.pop("$defs", {})}
@@ -50,7 +52,7 @@ _HEADER_LENGTH_DOC = {
 
 @router.post(
     f"/v2/models/{MODEL_NAME}/infer",
-    response_model=v2.InferenceResponse,
+    response_model=InferenceResponse,
     responses={
         200: {
             "description": "the JSON header (this schema) alone, or followed by the binary "
