@@ -47,7 +47,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", required=True, type=Path)
     p.add_argument("--out", required=True, type=Path, help="ONNX file to write")
     p.add_argument(
-        "--metrics", type=Path, help="JSON of `sdc-train evaluate --out`: headline metrics to embed"
+        "--metrics", type=Path, help="JSON of `sdc-eval evaluate --out`: headline metrics to embed"
     )
     p.add_argument(
         "--parity-seed", type=int, default=2024, help="seed of the rendered parity frames"

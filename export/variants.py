@@ -5,7 +5,7 @@
   spacecraft regions of training frames. Layers that carry metres or decide the mask at full
   resolution stay in float: the depth head (its output is scaled by the residual unit) and
   FSNet's head (its outputs are the full-resolution mask logits).
-Each variant is only worth keeping if its accuracy (``sdc-train evaluate --onnx``) and speed
+Each variant is only worth keeping if its accuracy (``sdc-eval evaluate --onnx``) and speed
 (``benchmarks/model_latency.py``) beat FP32 for the user's processor.
 """
 

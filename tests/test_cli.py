@@ -49,16 +49,19 @@ def _boom(*args, **kwargs):
 
 
 #: command -> (its module, the name in it to replace by a function that raises KeyError,
-#: arguments that reach it, where --debug goes); the training commands need torch.
+#: arguments that reach it, where --debug goes); the training and evaluation commands need
+#: torch.
 COMMANDS = {
     "sdc-client": ("sdcnet.client.cli", "cmd_model", ["model", "{debug}"], None),
     "sdc-serve": ("sdcnet.service.cli", "limit_malloc_arenas", ["{debug}"], None),
     "sdc-data": ("sdcnet.training.data.cli", "cmd_bench", ["{debug}", "bench"], "embreex"),
-    "sdc-train": ("sdcnet.training.cli", "cmd_ship", ["{debug}", "ship"], "torch"),
+    "sdc-train": ("sdcnet.training.cli", "ship_checkpoint", ["{debug}", "ship"], "torch"),
+    "sdc-eval": ("sdcnet.evaluation.cli", "write_card", ["{debug}", "card"], "torch"),
     "sdc-export": ("sdcnet.export.cli", "load_checkpoint", ["{debug}"], "torch"),
 }
 EXTRA_ARGS = {
     "sdc-train": ["--checkpoint", "a.pt", "--out", "b.pt"],
+    "sdc-eval": ["--checkpoint", "a.pt", "--out", "card.md"],
     "sdc-export": ["--checkpoint", "a.pt", "--out", "b.onnx"],
 }
 

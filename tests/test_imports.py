@@ -11,7 +11,16 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = ("sdcnet", "training", "export", "service", "client", "models", "benchmarks")
+FOLDERS = (
+    "sdcnet",
+    "training",
+    "evaluation",
+    "export",
+    "service",
+    "client",
+    "models",
+    "benchmarks",
+)
 
 
 def sdcnet_imports() -> list[tuple[str, str, str]]:
@@ -43,3 +52,22 @@ def test_every_imported_name_exists(module, names):
     if missing:  # a submodule imported by name: `from sdcnet.training import train`
         missing = [n for n in missing if importlib.util.find_spec(f"{module}.{n}") is None]
     assert not missing, f"{module} has no {missing}"
+
+
+#: Training validates with evaluation's yardstick, so the yardstick sits below training: these
+#: modules import nothing from ``sdcnet.training``, and training imports nothing else of
+#: ``sdcnet.evaluation`` (the rest of it sits above training: it loads checkpoints and renders
+#: frames).
+YARDSTICK = ("evaluation/scoring.py", "evaluation/classical_fill.py")
+
+
+@pytest.mark.parametrize("path", YARDSTICK)
+def test_the_yardstick_imports_nothing_from_training(path):
+    assert (ROOT / path).is_file()
+    assert not [m for file, m, _ in IMPORTS if file == path and m.startswith("sdcnet.training")]
+
+
+def test_training_imports_only_the_yardstick_of_evaluation():
+    from_training = {m for file, m, _ in IMPORTS if file.startswith("training/")}
+    evaluation = {m for m in from_training if m.startswith("sdcnet.evaluation")}
+    assert evaluation <= {"sdcnet.evaluation." + Path(path).stem for path in YARDSTICK}
