@@ -114,9 +114,8 @@ def export(args: argparse.Namespace) -> int:
         if name == "fp16":
             to_fp16(args.out, target)
         else:
-            to_int8(
-                args.out, target, calibration_frames(args.calibration_data), model.config.stride
-            )
+            frames = calibration_frames(args.calibration_data)
+            to_int8(args.out, target, frames, model.config.stride, model.float_modules())
         print(f"wrote {target} ({target.stat().st_size / 1e6:.2f} MB)")
     return 0
 
