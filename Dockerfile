@@ -24,6 +24,7 @@ WORKDIR /src
 COPY pyproject.toml constraints.txt README.md ./
 COPY sdcnet/ sdcnet/
 COPY training/ training/
+COPY evaluation/ evaluation/
 COPY export/ export/
 COPY service/ service/
 COPY client/ client/

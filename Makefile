@@ -116,26 +116,26 @@ reports: $(STAMP)
 		--zero fdcnet.head
 	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/paper --split test \
 		--limit 288 --out $(PREVIOUS_ANSWERS)/paper
-	$(VENV)/bin/sdc-train evaluate --checkpoint models/sdcnet.pt runs/ablation/plane-alone.pt \
+	$(VENV)/bin/sdc-eval evaluate --checkpoint models/sdcnet.pt runs/ablation/plane-alone.pt \
 		--names sdcnet "its plane fit alone" --answers "previous model=$(PREVIOUS_ANSWERS)/paper" \
 		--data data/paper --split test --floor --limit 288 --out models/eval_test.json \
 		--title "Synthetic test split, the paper's camera and LIDAR (18 unseen models, every fourth frame)"
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out models/sdcnet.onnx \
 		--metrics models/eval_test.json
 	$(PY) tests/test_answers_unchanged.py --write
-	$(VENV)/bin/sdc-train evaluate --onnx models/sdcnet.onnx --data data/paper --split test --limit 288 \
+	$(VENV)/bin/sdc-eval evaluate --onnx models/sdcnet.onnx --data data/paper --split test --limit 288 \
 		--out models/eval_test_onnx.json \
 		--title "Synthetic test split through onnxruntime (the service's numbers, every fourth frame)"
 	$(VENV)/bin/sdc-data generate --out data/real --models 0 --views 8 --seed 0 --split 0,0,0 \
 		--meshes $(MESHES)
 	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/real --out $(PREVIOUS_ANSWERS)/real
-	$(VENV)/bin/sdc-train real --onnx models/sdcnet.onnx --floor --out docs/real \
+	$(VENV)/bin/sdc-eval real --onnx models/sdcnet.onnx --floor --out docs/real \
 		--answers "previous model=$(PREVIOUS_ANSWERS)/real"
 	for c in $(CONDITIONS); do $(VENV)/bin/sdc-data generate --out data/robustness/$$c --models 126 \
 		--views 2 --seed 0 --world $$c --meshes $(MESHES) --only-splits test real || exit 1; done
 	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/robustness \
 		--out $(PREVIOUS_ANSWERS)/robustness
-	$(VENV)/bin/sdc-train robustness --onnx models/sdcnet.onnx --views 2 --out docs/robustness \
+	$(VENV)/bin/sdc-eval robustness --onnx models/sdcnet.onnx --views 2 --out docs/robustness \
 		--answers "previous model=$(PREVIOUS_ANSWERS)/robustness"
 	$(MAKE) card
 
@@ -166,11 +166,11 @@ ablation: $(STAMP)
 		--variant baseline
 	for i in gray sparse; do $(VENV)/bin/sdc-train fit --data data/mixed --out runs/ablation-fsnet-$$i \
 		--preset $(PRESET) --fsnet-inputs $$i --epochs 0 || exit 1; done
-	$(VENV)/bin/sdc-train evaluate --data data/paper --split test --limit 288 --out models/eval_ablation.json \
+	$(VENV)/bin/sdc-eval evaluate --data data/paper --split test --limit 288 --out models/eval_ablation.json \
 		--checkpoint runs/ablation-baseline/best.pt $(foreach v,$(FUSIONS),runs/ablation-$(v)/best.pt) $(RUN)c/shipped.pt \
 		--names "(a) baseline: guided conv., no FSNet" "(b) + FSNet" "(c) + FSNet + CCA" "(d) + FSNet + SA" "(e) + FSNet + CCA + SA = SDCNet" \
 		--title "Table 5 ablation, test split: each component added to the GuideNet-style baseline (cpu recipe, one seed; every fourth test frame)"
-	$(VENV)/bin/sdc-train evaluate --data data/paper --split test --segmentation-only \
+	$(VENV)/bin/sdc-eval evaluate --data data/paper --split test --segmentation-only \
 		--out models/eval_fsnet_inputs.json \
 		--checkpoint runs/ablation-fsnet-gray/best_stage1.pt runs/ablation-fsnet-sparse/best_stage1.pt $(RUN)c/best_stage1.pt \
 		--names "FSNet on gray" "FSNet on sparse depth" "FSNet on both" \
@@ -180,7 +180,7 @@ ablation: $(STAMP)
 ## card: rewrite models/MODEL_CARD.md from the checkpoint and the evaluation reports
 .PHONY: card
 card: $(STAMP)
-	$(VENV)/bin/sdc-train card --checkpoint models/sdcnet.pt --onnx models/sdcnet.onnx \
+	$(VENV)/bin/sdc-eval card --checkpoint models/sdcnet.pt --onnx models/sdcnet.onnx \
 		--report models/eval_test.json models/eval_test_onnx.json \
 		$(wildcard models/eval_ablation.json models/eval_fsnet_inputs.json) \
 		docs/real/real_spacecraft.json --robustness docs/robustness/robustness.json \

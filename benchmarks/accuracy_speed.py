@@ -25,9 +25,9 @@ import torch
 
 from benchmarks.common import DOCS, cpu_description, onnx_variants, write_markdown
 from sdcnet.dataset_format import SampleStore
+from sdcnet.evaluation.scoring import Method, classical, network, torch_model_fn
 from sdcnet.metrics import MetricTable, frame_metrics, markdown_table
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.evaluate import Method, classical, network, torch_model_fn
 
 
 def measure(method: Method, store: SampleStore, records: list[dict]) -> tuple[MetricTable, float]:

@@ -23,10 +23,10 @@ import numpy as np
 from benchmarks.common import DOCS, cpu_description, write_markdown
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
+from sdcnet.evaluation.classical_fill import classical_fill
 from sdcnet.metrics import MetricTable, frame_report
 from sdcnet.pipeline import complete
 from sdcnet.runtime import OnnxModel
-from sdcnet.training.classical_fill import classical_fill
 
 
 def measure(model: OnnxModel, stores: list[SampleStore], budget: int) -> tuple[dict, list[float]]:

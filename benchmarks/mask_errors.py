@@ -23,9 +23,9 @@ from tqdm import tqdm
 
 from benchmarks.common import DOCS, write_markdown
 from sdcnet.dataset_format import SampleStore
+from sdcnet.evaluation.scoring import network, torch_segmentation_fn
 from sdcnet.metrics import frame_metrics, mask_error_bands
 from sdcnet.training.checkpoint import load_checkpoint
-from sdcnet.training.evaluate import network, torch_segmentation_fn
 
 SIZE_BINS_PX = (0, 20_000, 60_000, 200_000, 1024 * 1024 + 1)  # true foreground pixels
 COLUMNS = ("IOU", "miss_edge", "fp_edge", "fn_edge", "miss_near", "miss_far", "IOU_off_edge")

@@ -4,7 +4,7 @@
         --previous e6a386e
 
 What the service does between decoding and encoding a frame, on the robustness suite's frames
-(``sdc-train robustness`` renders them: the paper's camera and others from 5 to 60 deg, 512 to
+(``sdc-eval robustness`` renders them: the paper's camera and others from 5 to 60 deg, 512 to
 2048 px, docking to 300 m): crop to the LIDAR-bounded region, resample to the working grid,
 onnxruntime, paste back, back-project the cloud. Per condition and over all frames: median,
 p95 and max in milliseconds, p95 / median, against the 100 ms a 10 Hz LIDAR leaves. With
@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     body = f"""
 Measured on {cpu_description()}, onnxruntime with {args.threads} intra-op threads (idle threads
 sleep, as in the service), {args.repeats} passes over the frames of `{args.data}` (the
-robustness suite's conditions: `sdc-train robustness`). Per frame: crop to the LIDAR-bounded
+robustness suite's conditions: `sdc-eval robustness`). Per frame: crop to the LIDAR-bounded
 region, resample to the working grid ({model.info.work_pixels} pixels), the network, paste back,
 back-project the cloud: the service's work between decode and encode.{previous_note}
 Regenerate: `python -m benchmarks.pipeline_latency --onnx {args.onnx} --data {args.data}` \\

@@ -8,7 +8,7 @@ Starts the real service (``sdc-serve`` on 127.0.0.1, ``--threads`` onnxruntime t
 sequence of ``--frames`` frames at 10 Hz (``sdc-data sequence``'s, seed 0). For every frame,
 back to back on one keep-alive connection: ``POST /complete`` (JSON answer), ``POST /pose``
 from scratch, and ``POST /pose`` tracking (``init``: the constant-velocity prediction of the
-previous two tracked answers, as ``sdc-train pose`` does; from the second frame on). Reports
+previous two tracked answers, as ``sdc-eval pose`` does; from the second frame on). Reports
 p50 / p95 round trip per kind, the service's own split (Server-Timing, and the registration's
 CPU time, which a busy machine does not inflate) and the targets
 (``/pose`` p50 <= 150 ms from scratch, <= 100 ms tracking); the machine's load average is

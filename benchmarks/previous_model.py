@@ -8,7 +8,7 @@ A model of another design cannot run in today's pipeline, so this installs the p
 was at ``--commit`` (``git archive``, then ``pip install --target``, once) and runs that
 version's own pipeline and model in a subprocess: the crop resampled to the model's focal
 length as its service did (``zoom``, up to 4x) from each frame's true intrinsics, as a user who
-sends them gets. Each frame's depth, mask and milliseconds go to ``OUT/<id>.npz``; ``sdc-train
+sends them gets. Each frame's depth, mask and milliseconds go to ``OUT/<id>.npz``; ``sdc-eval
 evaluate / real / robustness --answers "previous model=OUT"`` score them like any method.
 With a folder of datasets (``data/robustness``), one ``OUT/<dataset>`` per dataset.
 """

@@ -36,7 +36,7 @@ from sdcnet.runtime import OnnxModel
 from sdcnet.targets import load_target
 from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
-REAL_MESHES = Path("../shared/real-meshes")  # as sdc-train real: from the repository root
+REAL_MESHES = Path("../shared/real-meshes")  # as sdc-eval real: from the repository root
 SHIPPED = Path(__file__).resolve().parents[1] / "models" / "sdcnet.onnx"
 
 try:

@@ -5,7 +5,7 @@
 
 Two 1024 x 1024 frames: one of the test split of ``data/paper`` (a generated frame when the
 dataset is absent) and one rendered from a real NASA mesh (``--mesh``, by the dataset
-generator, as ``sdc-train real`` renders them). For each, in one run and interleaved round by
+generator, as ``sdc-eval real`` renders them). For each, in one run and interleaved round by
 round (every path once per round, in a rotating order, so that the machine's load falls on all
 of them alike):
 

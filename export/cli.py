@@ -47,7 +47,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", required=True, type=Path)
     p.add_argument("--out", required=True, type=Path, help="ONNX file to write")
     p.add_argument(
-        "--metrics", type=Path, help="JSON of `sdc-train evaluate --out`: headline metrics to embed"
+        "--metrics", type=Path, help="JSON of `sdc-eval evaluate --out`: headline metrics to embed"
     )
     p.add_argument(
         "--parity-seed", type=int, default=2024, help="seed of the rendered parity frames"
@@ -114,9 +114,8 @@ def export(args: argparse.Namespace) -> int:
         if name == "fp16":
             to_fp16(args.out, target)
         else:
-            to_int8(
-                args.out, target, calibration_frames(args.calibration_data), model.config.stride
-            )
+            frames = calibration_frames(args.calibration_data)
+            to_int8(args.out, target, frames, model.config.stride, model.float_modules())
         print(f"wrote {target} ({target.stat().st_size / 1e6:.2f} MB)")
     return 0
 

@@ -3,15 +3,14 @@
 - FP16: weights and activations in half precision, inputs and outputs kept float32.
 - INT8: static quantisation (QDQ, per-channel weights) of the convolutions, calibrated on
   spacecraft regions of training frames. Layers that carry metres or decide the mask at full
-  resolution stay in float: the depth head (its output is scaled by the residual unit) and
-  FSNet's head (its outputs are the full-resolution mask logits).
-Each variant is only worth keeping if its accuracy (``sdc-train evaluate --onnx``) and speed
+  resolution stay in float: the model names them (``SDCNet.float_modules``).
+Each variant is only worth keeping if its accuracy (``sdc-eval evaluate --onnx``) and speed
 (``benchmarks/model_latency.py``) beat FP32 for the user's processor.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -21,13 +20,6 @@ from onnxruntime.quantization.shape_inference import quant_pre_process
 from onnxruntime.transformers.float16 import convert_float_to_float16
 
 from sdcnet.pipeline import working_inputs
-
-#: Modules of ``SDCNet`` that INT8 leaves in float (see the module doc): the depth head and
-#: FSNet's head.
-FLOAT_MODULES = ("fdcnet.head", "fsnet.head")
-#: Their nodes' names in the ONNX graph: the TorchScript exporter names a node after the path
-#: of the module that made it ("/fdcnet/head/Conv").
-FLOAT_NODES_PREFIXES = tuple(f"/{name.replace('.', '/')}/" for name in FLOAT_MODULES)
 
 
 def to_fp16(source: str | Path, target: str | Path) -> Path:
@@ -56,13 +48,30 @@ class RegionReader(CalibrationDataReader):
         }
 
 
-def float_nodes(model: onnx.ModelProto) -> list[str]:
-    """Names of the nodes of ``model`` that INT8 leaves in float (``FLOAT_MODULES``')."""
-    return [n.name for n in model.graph.node if n.name.startswith(FLOAT_NODES_PREFIXES)]
+def float_nodes(graph: onnx.ModelProto, modules: Sequence[str]) -> list[str]:
+    """Names of the nodes of ``graph`` that the ``modules`` (their names in the network) made:
+    the TorchScript exporter names a node after the path of its module ("/fdcnet/head/Conv").
+    A ``ValueError`` if one of them made none: INT8 would quantise it quietly."""
+    prefixes = {name: f"/{name.replace('.', '/')}/" for name in modules}
+    found = {
+        name: [n.name for n in graph.graph.node if n.name.startswith(p)]
+        for name, p in prefixes.items()
+    }
+    missing = [name for name, nodes in found.items() if not nodes]
+    if missing:
+        raise ValueError(f"no node of {missing} in the ONNX graph: they would be quantised")
+    return [node for nodes in found.values() for node in nodes]
 
 
-def to_int8(source: str | Path, target: str | Path, frames: Iterator | list, stride: int) -> Path:
-    """Static INT8 quantisation of the convolutions, calibrated on ``frames``."""
+def to_int8(
+    source: str | Path,
+    target: str | Path,
+    frames: Iterator | list,
+    stride: int,
+    float_modules: Sequence[str],
+) -> Path:
+    """Static INT8 quantisation of the convolutions, calibrated on ``frames``, but for those of
+    ``float_modules`` (``SDCNet.float_modules()``), which stay in float."""
     target = Path(target)
     prepared = target.with_suffix(".prep.onnx")
     quant_pre_process(str(source), str(prepared), skip_symbolic_shape=True)
@@ -76,7 +85,7 @@ def to_int8(source: str | Path, target: str | Path, frames: Iterator | list, str
             per_channel=True,
             activation_type=QuantType.QUInt8,
             weight_type=QuantType.QInt8,
-            nodes_to_exclude=float_nodes(onnx.load(str(prepared))),
+            nodes_to_exclude=float_nodes(onnx.load(str(prepared)), float_modules),
         )
     finally:
         prepared.unlink(missing_ok=True)

@@ -2,7 +2,8 @@
 
 The core package holds what every part shares and needs no torch: the camera model,
 the metrics, point clouds. Subpackages map the repository's top-level folders:
-``sdcnet.training`` (``training/``), ``sdcnet.export``, ``sdcnet.service``, ``sdcnet.client``.
+``sdcnet.training`` (``training/``), ``sdcnet.evaluation``, ``sdcnet.export``, ``sdcnet.service``,
+``sdcnet.client``.
 """
 
 __version__ = "0.1.0"

@@ -1,5 +1,5 @@
-"""How every sdcnet command (``sdc-data``, ``sdc-train``, ``sdc-export``, ``sdc-serve``,
-``sdc-client``) ends on an error.
+"""How every sdcnet command (``sdc-data``, ``sdc-train``, ``sdc-eval``, ``sdc-export``,
+``sdc-serve``, ``sdc-client``) ends on an error.
 
 A user's mistake (a missing file, a bad value, a service that answered an error) is one line,
 ``PROG: error: MESSAGE``, and the command's exit status for it. Anything else is a bug: one line

@@ -14,7 +14,7 @@ import pytest
 
 from tests.support.models import tiny_model
 
-#: Test modules of training, export and the generator (torch, embreex).
+#: Test modules of training, evaluation, export and the generator (torch, embreex).
 NEEDS_TRAINING = {
     "test_deploy.py",  # checks the dataset Job's arguments with sdc-data's own parser
     "test_export.py",
@@ -23,7 +23,7 @@ NEEDS_TRAINING = {
     "test_wheel.py",  # builds the wheel with the dev extra's build backend (setuptools, wheel)
     "test_model.py",
     "test_plane_fit.py",
-    "test_pose_eval.py",  # sdc-train pose: the generator's frames, the shipped model's clouds
+    "test_pose_eval.py",  # sdc-eval pose: the generator's frames, the shipped model's clouds
     "test_real_meshes.py",
     "test_sequence.py",  # sdc-data sequence
     "test_training.py",

@@ -3,6 +3,7 @@
 import json
 import math
 
+import numpy as np
 import onnx
 import pytest
 import torch
@@ -11,7 +12,8 @@ from sdcnet.export import onnx_export
 from sdcnet.export.cli import main as export_main
 from sdcnet.export.cli import parity_frames
 from sdcnet.export.onnx_export import export_onnx, network_metadata_props, parity_check
-from sdcnet.export.variants import FLOAT_MODULES, FLOAT_NODES_PREFIXES, to_int8
+from sdcnet.export.variants import float_nodes, to_fp16, to_int8
+from sdcnet.pipeline import complete
 from sdcnet.runtime import ModelLoadError, OnnxModel
 from sdcnet.training.checkpoint import save_checkpoint
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
@@ -126,22 +128,59 @@ def test_loading_a_bad_model_file_says_why(tmp_path):
         OnnxModel(tmp_path / "junk.onnx", provider="TensorrtExecutionProvider")
 
 
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_every_variant_names_its_float_modules_and_they_are_its_heads(variant):
+    """INT8 keeps the modules ``SDCNet.float_modules`` names in float, found by name in the
+    exported graph: a head renamed must fail here, not be quantised quietly."""
+    model = build_model(variant)
+    modules = [model.get_submodule(name) for name in model.float_modules()]  # each one exists
+    heads = [model.fdcnet.head] + ([model.fsnet.head] if model.fsnet is not None else [])
+    assert modules == heads  # the depth residual, scaled to metres; the mask logits
+    assert all(isinstance(m, torch.nn.Conv2d) for m in modules)  # what INT8 would quantise
+
+
+def test_a_float_module_missing_from_the_graph_is_an_error(exported):
+    _, path = exported
+    graph = onnx.load(str(path))
+    assert float_nodes(graph, ["fdcnet.head"]) == ["/fdcnet/head/Conv"]
+    with pytest.raises(ValueError, match="would be quantised"):
+        float_nodes(graph, ["fdcnet.head", "fdcnet.renamed_head"])
+
+
+def test_fp16_and_int8_variants_of_a_tiny_model_run(frames, tmp_path):
+    """Both variants of a tiny network export and answer a frame through the pipeline, their
+    depth near the float model's (its depth head starts at zero: depth is mostly the plane
+    fit, which INT8 leaves nearly whole)."""
+    torch.manual_seed(0)
+    model = build_model("sdcnet", widths=(4, 4, 4, 4)).eval()
+    stride = model.config.stride
+    path = export_onnx(model, tmp_path / "m.onnx", network_metadata_props(model, "test"))
+    variants = {
+        "fp16": to_fp16(path, tmp_path / "m.fp16.onnx"),
+        "int8": to_int8(path, tmp_path / "m.int8.onnx", frames[:1], stride, model.float_modules()),
+    }
+    gray, sparse, fx = frames[0]
+    reference = complete(OnnxModel(path, provider="cpu").run, gray, sparse, fx, stride)
+    for name, variant in variants.items():
+        answer = complete(OnnxModel(variant, provider="cpu").run, gray, sparse, fx, stride)
+        both = answer.mask & reference.mask
+        assert both.sum() > 0.5 * reference.mask.sum(), name
+        error = np.abs(answer.depth[both] - reference.depth[both]) / reference.depth[both]
+        assert np.percentile(error, 99) < 0.02, name
+
+
 def test_int8_keeps_the_depth_and_mask_heads_in_float(exported, frames, tmp_path):
-    """INT8 picks the layers it keeps in float by name (``FLOAT_MODULES``): a head renamed, or
-    named otherwise by the exporter, would be quantised quietly. The names must be the
-    network's depth and mask heads, and in the quantised graph every convolution of theirs,
-    and only theirs, must keep float weights."""
+    """In the quantised graph every convolution of the modules the model names
+    (``SDCNet.float_modules``), and only theirs, keeps float weights."""
     model, path = exported
-    assert [model.get_submodule(name) for name in FLOAT_MODULES] == [
-        model.fdcnet.head,  # the depth residual, scaled to metres
-        model.fsnet.head,  # the mask logits
-    ]
-    target = to_int8(path, tmp_path / "m.int8.onnx", frames[:1], model.config.stride)
+    modules = model.float_modules()
+    target = to_int8(path, tmp_path / "m.int8.onnx", frames[:1], model.config.stride, modules)
     graph = onnx.load(str(target)).graph
     dequantized = {n.output[0] for n in graph.node if n.op_type == "DequantizeLinear"}
     convs = [n for n in graph.node if n.op_type == "Conv"]
     in_float = {n.name for n in convs if n.input[1] not in dequantized}
-    for prefix in FLOAT_NODES_PREFIXES:
+    prefixes = tuple(f"/{name.replace('.', '/')}/" for name in modules)
+    for prefix in prefixes:
         assert any(name.startswith(prefix) for name in in_float), f"no float Conv {prefix}*"
-    assert all(name.startswith(FLOAT_NODES_PREFIXES) for name in in_float)
+    assert all(name.startswith(prefixes) for name in in_float)
     assert len(in_float) < len(convs)  # the rest is quantised

@@ -14,7 +14,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 #: What the wheel installs (pyproject's package-dir).
-SHIPPED = ("sdcnet", "training", "export", "service", "client", "models")
+SHIPPED = ("sdcnet", "training", "evaluation", "export", "service", "client", "models")
 FOLDERS = (*SHIPPED, "benchmarks", "tests")
 #: Top-level packages of the repository that the wheel leaves out.
 NOT_SHIPPED = {"tests", "benchmarks"}
@@ -80,3 +80,22 @@ def test_shipped_code_imports_nothing_of_the_tests_or_the_benchmarks(folder):
         if module.split(".")[0] in NOT_SHIPPED
     ]
     assert not found
+
+
+#: Training validates with evaluation's yardstick, so the yardstick sits below training: these
+#: modules import nothing from ``sdcnet.training``, and training imports nothing else of
+#: ``sdcnet.evaluation`` (the rest of it sits above training: it loads checkpoints and renders
+#: frames).
+YARDSTICK = ("evaluation/scoring.py", "evaluation/classical_fill.py")
+
+
+@pytest.mark.parametrize("path", YARDSTICK)
+def test_the_yardstick_imports_nothing_from_training(path):
+    assert (ROOT / path).is_file()
+    assert not [m for file, m, _ in IMPORTS if file == path and m.startswith("sdcnet.training")]
+
+
+def test_training_imports_only_the_yardstick_of_evaluation():
+    from_training = {m for file, m, _ in IMPORTS if file.startswith("training/")}
+    evaluation = {m for m in from_training if m.startswith("sdcnet.evaluation")}
+    assert evaluation <= {"sdcnet.evaluation." + Path(path).stem for path in YARDSTICK}

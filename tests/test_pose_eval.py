@@ -7,23 +7,21 @@ import numpy as np
 import pytest
 import trimesh
 
+from sdcnet.evaluation.pose_eval import (
+    RAW,
+    FrameResult,
+    evaluate_frames,
+    perturbed,
+    single_frames,
+    symmetric_errors,
+)
+from sdcnet.evaluation.pose_report import report, sigma_coverage, summary
+from sdcnet.evaluation.scoring import network
 from sdcnet.rigid import Pose, axis_angle, pose_errors
 from sdcnet.runtime import OnnxModel
 from sdcnet.service.settings import shipped_model_path
 from sdcnet.targets import prepare_target
 from sdcnet.training.data.generate import GenerateConfig, build_spacecraft
-from sdcnet.training.evaluate import network
-from sdcnet.training.pose_eval import (
-    RAW,
-    FrameResult,
-    evaluate_frames,
-    perturbed,
-    report,
-    sigma_coverage,
-    single_frames,
-    summary,
-    symmetric_errors,
-)
 
 
 def _frame(rotation_deg: float, translation_m: float, cloud: str = "completed", **kw):
@@ -111,7 +109,7 @@ def test_the_report_separates_clouds_modes_and_spacecraft():
 
 
 def test_the_shipped_models_cloud_gives_the_pose_of_a_rendered_frame():
-    """End to end as ``sdc-train pose`` runs it: a procedural spacecraft rendered at 1024 x
+    """End to end as ``sdc-eval pose`` runs it: a procedural spacecraft rendered at 1024 x
     1024 by the generator, completed by the shipped model, registered from scratch."""
     config = GenerateConfig(models=1, views=1, seed=3, split=(1, 0, 0))
     craft = build_spacecraft(config, 0)

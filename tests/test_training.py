@@ -1,4 +1,5 @@
-"""sdc-train end to end on a tiny generated dataset: fit, resume, evaluate, card."""
+"""sdc-train end to end on a tiny generated dataset: fit, resume, ship, calibrate; and
+``sdc-eval``'s evaluate and card on what it trained."""
 
 import csv
 import json
@@ -13,6 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from sdcnet.evaluation.cli import main as eval_main
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.cli import main as train_main
 from sdcnet.training.cli import parser as train_parser
@@ -96,7 +98,7 @@ def test_evaluate_prints_the_table_with_the_floor_and_writes_the_card(
 ):
     report = tmp_path / "test.json"
     assert (
-        train_main(
+        eval_main(
             [
                 "evaluate",
                 "--checkpoint",
@@ -123,7 +125,7 @@ def test_evaluate_prints_the_table_with_the_floor_and_writes_the_card(
     assert results["sdcnet"]["specks"] >= 0
     card = tmp_path / "card.md"
     assert (
-        train_main(
+        eval_main(
             [
                 "card",
                 "--checkpoint",
@@ -159,9 +161,7 @@ def test_init_weights_fine_tunes_the_segmentation_alone(run, tiny_dataset, tmp_p
     ]
     assert epochs[0] == epochs[1]
     card = tmp_path / "card.md"
-    assert (
-        train_main(["card", "--checkpoint", str(out / "best_stage1.pt"), "--out", str(card)]) == 0
-    )
+    assert eval_main(["card", "--checkpoint", str(out / "best_stage1.pt"), "--out", str(card)]) == 0
     text = card.read_text()
     assert "2 run(s)" in text and "| recipe | run 1 | run 2 |" in text
     assert source_state["train_config"]["command"] in text
@@ -177,10 +177,10 @@ def test_segmentation_only_evaluation_reports_the_mask_alone(run, tiny_dataset, 
     report = tmp_path / "seg.json"
     args = ["evaluate", "--data", str(tiny_dataset), "--split", "test", "--out", str(report)]
     best = str(run / "best.pt")
-    assert train_main([*args, "--checkpoint", best, best]) == 2
+    assert eval_main([*args, "--checkpoint", best, best]) == 2
     assert "--names" in capsys.readouterr().err
     names = ["--names", "first", "second", "--segmentation-only"]
-    assert train_main([*args, "--checkpoint", best, best, *names]) == 0
+    assert eval_main([*args, "--checkpoint", best, best, *names]) == 0
     table = capsys.readouterr().out
     assert "| first |" in table and "| n/a |" in table
     first, second = json.loads(report.read_text())["results"].values()
@@ -192,13 +192,13 @@ def test_evaluate_appends_rows_made_on_the_same_frames(run, tiny_dataset, tmp_pa
     report = tmp_path / "table.json"
     args = ["evaluate", "--data", str(tiny_dataset), "--split", "test", "--out", str(report)]
     best = ["--checkpoint", str(run / "best.pt"), "--segmentation-only"]
-    assert train_main([*args, *best, "--names", "(b) second"]) == 0
-    assert train_main([*args, "--floor", "--append"]) == 0
-    assert train_main([*args, *best, "--names", "(a) first", "--append"]) == 0
+    assert eval_main([*args, *best, "--names", "(b) second"]) == 0
+    assert eval_main([*args, "--floor", "--append"]) == 0
+    assert eval_main([*args, *best, "--names", "(a) first", "--append"]) == 0
     rows = json.loads(report.read_text())["results"]
     assert list(rows) == ["(a) first", "(b) second", "classical fill"]
     assert rows["(a) first"]["IOU"] == rows["(b) second"]["IOU"]
-    assert train_main([*args, "--floor", "--append", "--limit", "1"]) == 2
+    assert eval_main([*args, "--floor", "--append", "--limit", "1"]) == 2
     assert "other frames" in capsys.readouterr().err
     assert list(json.loads(report.read_text())["results"]) == list(rows), "left untouched"
 

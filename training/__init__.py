@@ -1,1 +1,1 @@
-"""Training side of sdcnet: the synthetic data generator, the model, training and evaluation."""
+"""Training side of sdcnet: the synthetic data generator, the model and its training."""

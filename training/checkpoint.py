@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import pickle
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
@@ -106,3 +107,25 @@ def load_checkpoint(
     model = SDCNet(ModelConfig.from_dict(state["model_config"]))
     load_weights(model, state["model"], path)
     return model.eval(), state
+
+
+def ship_checkpoint(source: str | Path, target: str | Path, zero: Sequence[str] = ()) -> None:
+    """Copy the checkpoint at ``source`` to ``target`` without the optimiser's and scheduler's
+    state (to commit it). ``zero``: an ablation copy, the weights under these module prefixes
+    set to 0 (e.g. ``fdcnet.head``: depth is the plane fit alone), which it records."""
+    model, state = load_checkpoint(source)
+    weights = model.state_dict()
+    for prefix in zero:
+        chosen = [k for k in weights if k.startswith(prefix + ".") or k == prefix]
+        if not chosen:
+            raise ValueError(f"--zero {prefix}: no weights under that prefix in {source}")
+        for key in chosen:
+            weights[key].zero_()
+    keep = {
+        k: v
+        for k, v in state.items()
+        if k not in ("model", "model_config", "optimizer", "scheduler")
+    }
+    if zero:
+        keep["zeroed"] = list(zero)
+    save_checkpoint(Path(target), model, **keep)

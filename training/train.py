@@ -25,6 +25,13 @@ from torch.utils.data import DataLoader, DistributedSampler, Subset
 from tqdm import tqdm
 
 from sdcnet.dataset_format import SampleStore, evenly_spread
+from sdcnet.evaluation.scoring import (
+    evaluate_records,
+    mask_metrics_only,
+    network,
+    torch_model_fn,
+    torch_segmentation_fn,
+)
 from sdcnet.metrics import NAMES
 from sdcnet.training.checkpoint import (
     load_weights,
@@ -33,13 +40,6 @@ from sdcnet.training.checkpoint import (
     transplant_weights,
 )
 from sdcnet.training.dataset import TileDataset
-from sdcnet.training.evaluate import (
-    evaluate_records,
-    mask_metrics_only,
-    network,
-    torch_model_fn,
-    torch_segmentation_fn,
-)
 from sdcnet.training.losses import (
     dense_depth_loss,
     depth_gradient_loss,

@@ -10,12 +10,14 @@ its 68th percentile is 1.
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from sdcnet.dataset_format import SampleStore
-from sdcnet.training.evaluate import network, torch_model_fn
+from sdcnet.evaluation.scoring import network, torch_model_fn
+from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
 from sdcnet.training.model.sdcnet import SDCNet
 
 #: Share of pixels a calibrated sigma covers (one sigma of a Gaussian).
@@ -69,3 +71,35 @@ def calibrated(model: SDCNet, ratios: np.ndarray) -> tuple[SDCNet, dict[str, flo
         "pixels": int(ratios.size),
     }
     return fixed, report
+
+
+def calibrate_checkpoint(
+    checkpoint: str,
+    data: str,
+    out: str,
+    split: str = "val",
+    limit: int | None = 90,
+    edge_weight: float = 0.5,
+) -> str:
+    """Write to ``out`` the checkpoint with its sigma calibrated on ``limit`` frames (evenly
+    spread) of ``split`` of the dataset at ``data``, after setting the depth-edge term to
+    ``edge_weight`` (per metre of local depth spread; 0: the scale head alone). The report
+    goes into the checkpoint; returns it in one line."""
+    model, state = load_checkpoint(checkpoint)
+    model = with_sigma(model, model.config.sigma_per_scale, edge_weight)
+    store = SampleStore(data)
+    records = store.split(split, limit)
+    if not records:
+        raise ValueError(f"split {split!r} is empty in {data}")
+    fixed, report = calibrated(model, error_ratios(model, store, records))
+    keep = {k: v for k, v in state.items() if k not in ("model", "model_config")}
+    keep["sigma_calibration"] = {**report, "data": data, "split": split, "frames": len(records)}
+    save_checkpoint(Path(out), fixed, **keep)
+    return (
+        f"sigma x {report['factor']:.3f} (sigma_per_scale {report['sigma_per_scale']:.3f}, "
+        f"sigma_edge_weight {report['sigma_edge_weight']:.3f}): "
+        f"within 1 / 2 sigma {100 * report['within_1_before']:.1f} / "
+        f"{100 * report['within_2_before']:.1f} % -> {100 * report['within_1_after']:.1f} / "
+        f"{100 * report['within_2_after']:.1f} % on {report['pixels']} px of {len(records)} "
+        f"{split} frames; wrote {out}"
+    )

@@ -180,6 +180,14 @@ class SDCNet(nn.Module):
         nn.init.zeros_(self.fdcnet.head.weight)
         nn.init.zeros_(self.fdcnet.head.bias)
 
+    def float_modules(self) -> tuple[str, ...]:
+        """Names of the modules that INT8 export keeps in float (``sdcnet.export.variants``):
+        the depth head, whose output the residual unit scales to metres, and FSNet's head,
+        whose outputs are the full-resolution mask logits (a variant without FSNet has only
+        the first). ``tests/test_export.py`` checks that each name is a convolution of every
+        variant, so renaming a head breaks the test rather than quantising the head."""
+        return ("fdcnet.head", "fsnet.head") if self.fsnet is not None else ("fdcnet.head",)
+
     def segmentation_parameters(self) -> list[nn.Parameter]:
         """Stage 1 trains these; stage 2 freezes them."""
         parts = [m for m in (self.fsnet, self.refiner) if m is not None]

@@ -1,19 +1,22 @@
 """Model card: how a checkpoint was made and what it scored, written from the records.
 
 Everything factual comes from the checkpoint (training config, dataset command and seed,
-history, hardware) and from ``sdc-train evaluate --out`` reports; free text comes from a notes
+history, hardware) and from ``sdc-eval evaluate --out`` reports; free text comes from a notes
 file, so the card can be regenerated whenever the model is.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
+from sdcnet.evaluation.robustness import table_of
 from sdcnet.metrics import depth_table, markdown_table, uncertainty_table
+from sdcnet.training.checkpoint import load_checkpoint
 from sdcnet.training.model.sdcnet import SDCNet
-from sdcnet.training.robustness import table_of
 
 
 def lineage(state: dict) -> list[dict]:
@@ -151,7 +154,7 @@ def model_card(
         lines += [
             "## Robustness suite: every condition, model against the classical fill",
             "",
-            "`sdc-train robustness`: frames of spacecraft never trained on (the test split's "
+            "`sdc-eval robustness`: frames of spacecraft never trained on (the test split's "
             "models and the real meshes) per condition (`docs/dataset.md`); IOU with the "
             "fill's in brackets, depth MAE on the pixels shared with the fill (the fill's in "
             "brackets) overall and by distance to the nearest return, mean normal error, false "
@@ -163,3 +166,28 @@ def model_card(
     if notes:
         lines += [notes.strip(), ""]
     return "\n".join(lines)
+
+
+def write_card(
+    checkpoint: str,
+    out: str,
+    reports: Sequence[str] = (),
+    onnx: str | None = None,
+    notes: str | None = None,
+    robustness: str | None = None,
+) -> None:
+    """``model_card`` of ``checkpoint`` written to ``out``, from the JSON ``reports`` of
+    ``sdc-eval evaluate --out`` (and ``real``), the ``robustness.json`` of ``sdc-eval
+    robustness`` and a markdown ``notes`` file. The version is the exported ``onnx`` model's,
+    else the checkpoint's file name."""
+    model, state = load_checkpoint(checkpoint)
+    loaded = [json.loads(Path(r).read_text()) for r in reports]
+    version = Path(checkpoint).stem
+    if onnx:
+        import onnx as onnx_format
+
+        meta = {p.key: p.value for p in onnx_format.load(onnx).metadata_props}
+        version = meta.get("model_version", version)
+    text = Path(notes).read_text() if notes else ""
+    suite = json.loads(Path(robustness).read_text()) if robustness else None
+    Path(out).write_text(model_card(state, model, loaded, version, text, suite))

@@ -1,4 +1,6 @@
-"""Evaluation on a split with the paper's metrics, through PyTorch or the exported ONNX model.
+"""The yardstick: a method's answers scored with the paper's metrics, through PyTorch or the
+exported ONNX model. Training's validation scores with it too, so it imports nothing from
+``sdcnet.training`` (``tests/test_imports.py`` checks).
 
 Every method runs through ``sdcnet.pipeline.complete`` on whole frames, exactly as the service
 does: crop to the LIDAR-bounded region, resample to the working grid, infer, paste back; the
@@ -16,10 +18,9 @@ from tqdm import tqdm
 
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
+from sdcnet.evaluation.classical_fill import classical_fill
 from sdcnet.metrics import MASK_NAMES, MetricTable, false_specks, frame_metrics, frame_report
 from sdcnet.pipeline import WORK_PIXELS, ModelFn, complete
-from sdcnet.training.classical_fill import classical_fill
-from sdcnet.training.model.sdcnet import SDCNet
 
 
 def torch_model_fn(model: torch.nn.Module, device: torch.device | str = "cpu") -> ModelFn:
@@ -35,8 +36,8 @@ def torch_model_fn(model: torch.nn.Module, device: torch.device | str = "cpu") -
     return run
 
 
-def torch_segmentation_fn(model: SDCNet, device: torch.device | str = "cpu") -> ModelFn:
-    """Only the foreground path of ``model`` (depth left at 0): for segmentation-only
+def torch_segmentation_fn(model: torch.nn.Module, device: torch.device | str = "cpu") -> ModelFn:
+    """Only the foreground path of ``model``, an ``SDCNet`` (depth left at 0): for segmentation-only
     checkpoints (stage 1 alone, e.g. the FSNet input ablation) and at a fraction of the cost."""
     model = model.eval().to(device)
 
@@ -69,6 +70,10 @@ def network(model_fn: ModelFn, stride: int, work_pixels: int = WORK_PIXELS) -> M
         return result.depth, result.mask, result.sigma
 
     return answer
+
+
+#: The classical fill's name in every table and report.
+FILL = "classical fill"
 
 
 def classical(sample: Sample) -> tuple[np.ndarray, np.ndarray, None]:

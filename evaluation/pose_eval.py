@@ -1,11 +1,11 @@
-"""Pose evaluation (``sdc-train pose``): single frames from scratch and sequences tracked at
+"""Pose evaluation (``sdc-eval pose``): single frames from scratch and sequences tracked at
 10 Hz, from three clouds, so that the table shows what completion buys.
 
 The clouds of a frame (camera frame, metres), each registered by ``sdcnet.registration``
 with the frame's LIDAR returns as the final refinement (the service's own path):
 
 - ``completed``: the model's completed depth (ONNX, ``sdcnet.pipeline.complete``);
-- ``classical fill``: the morphological fill's depth (``sdcnet.training.classical_fill``);
+- ``classical fill``: the morphological fill's depth (``sdcnet.evaluation.classical_fill``);
 - ``raw returns``: the LIDAR returns alone.
 
 Tracking: the first frame of a sequence from scratch, every next one from the constant-velocity
@@ -25,7 +25,7 @@ import json
 import time
 from collections import defaultdict
 from collections.abc import Iterable, Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,27 +33,18 @@ from tqdm import tqdm
 
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
+from sdcnet.evaluation.scoring import Method
 from sdcnet.pointcloud import back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, axis_angle, extrapolate, pose_errors
 from sdcnet.targets import Target, prepare_target
 from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 from sdcnet.training.data.spacecraft import SpacecraftModel
-from sdcnet.training.evaluate import Method
-from sdcnet.visualize import (
-    colorize_depth,
-    dilated_returns,
-    draw_points,
-    gray_bgr,
-    labelled,
-    object_crop,
-)
 
 SUCCESS_DEG, SUCCESS_M = 2.0, 0.2
 RAW = "raw returns"
 #: Perturbations of the true pose that perturbed-init tracking starts from: (degrees, metres).
 PERTURBATIONS = ((5.0, 0.3), (10.0, 1.0))
-VERDICTS = ("reliable", "ambiguous", "unreliable")
 
 
 @dataclass(frozen=True)
@@ -256,144 +247,6 @@ def evaluate_sequences(
     return results
 
 
-def summary(results: list[FrameResult]) -> dict[str, float]:
-    """Means over frames; a frame without a pose counts as a failure, not in the errors."""
-    posed = [r for r in results if np.isfinite(r.rotation_deg)]
-    rot = np.array([r.rotation_deg for r in posed])
-    trans = np.array([r.translation_m for r in posed])
-    share = np.array([100 * r.translation_m / r.range_m for r in posed])
-    verdicts = {v: 100 * float(np.mean([r.verdict == v for r in results])) for v in VERDICTS}
-    return {
-        "frames": len(results),
-        "no_pose": len(results) - len(posed),
-        "rotation_mean_deg": float(rot.mean()) if len(rot) else float("nan"),
-        "rotation_median_deg": float(np.median(rot)) if len(rot) else float("nan"),
-        "translation_mean_m": float(trans.mean()) if len(trans) else float("nan"),
-        "translation_median_m": float(np.median(trans)) if len(trans) else float("nan"),
-        "translation_mean_pct_range": float(share.mean()) if len(share) else float("nan"),
-        "success_pct": 100 * float(np.mean([r.success for r in results])),
-        "symmetric_success_pct": 100 * float(np.mean([r.symmetric_success for r in results])),
-        **{f"verdict_{v}_pct": share for v, share in verdicts.items()},
-        "reliable_but_wrong": sum(r.reliable_but_wrong for r in results),
-        "among_answers_pct": 100 * float(np.mean([r.among_answers for r in results])),
-        "ambiguous_pct": 100 * float(np.mean([r.ambiguous for r in results])),
-        "registration_p50_ms": float(np.median([r.registration_ms for r in results])),
-        "cloud_p50_ms": float(np.median([r.cloud_ms for r in results])),
-    }
-
-
-def table(rows: dict[str, dict[str, float]]) -> str:
-    """Markdown: one row per (what, cloud)."""
-    lines = [
-        "| | frames | rot. mean deg | rot. median | transl. mean m | median | % of range | "
-        "success (2 deg, 0.2 m) | modulo symmetry | truth among answers | ambiguous | "
-        "verdict reliable / ambiguous / unreliable | reliable but wrong | registration p50 ms | "
-        "cloud p50 ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for name, s in rows.items():
-        lines.append(
-            f"| {name} | {s['frames']} | {s['rotation_mean_deg']:.2f} | "
-            f"{s['rotation_median_deg']:.2f} | {s['translation_mean_m']:.3f} | "
-            f"{s['translation_median_m']:.3f} | {s['translation_mean_pct_range']:.3f} | "
-            f"{s['success_pct']:.1f} % | {s['symmetric_success_pct']:.1f} % | "
-            f"{s['among_answers_pct']:.1f} % | {s['ambiguous_pct']:.1f} % | "
-            f"{s['verdict_reliable_pct']:.0f} / {s['verdict_ambiguous_pct']:.0f} / "
-            f"{s['verdict_unreliable_pct']:.0f} % | "
-            f"{s['reliable_but_wrong']} | {s['registration_p50_ms']:.1f} | "
-            f"{s['cloud_p50_ms']:.1f} |"
-        )
-    return "\n".join(lines)
-
-
-def grouped(results: list[FrameResult], key) -> dict[str, list[FrameResult]]:
-    groups: dict[str, list[FrameResult]] = defaultdict(list)
-    for r in results:
-        groups[key(r)].append(r)
-    return dict(sorted(groups.items()))
-
-
-def report(results: dict[str, list[FrameResult]], clouds_order: list[str]) -> tuple[str, dict]:
-    """Markdown and JSON of every evaluation (name -> frame results): per cloud (and mode:
-    a sequence's first frame is found from scratch), per trajectory, per spacecraft."""
-
-    def key(r: FrameResult) -> str:
-        return r.cloud if r.mode == "scratch" and not r.trajectory else f"{r.cloud}, {r.mode}"
-
-    def order(k: str) -> tuple:
-        cloud = k.split(",")[0]
-        return (clouds_order.index(cloud) if cloud in clouds_order else 99, k)
-
-    lines, data = [], {}
-    for name, frames in results.items():
-        rows = grouped(frames, key)
-        overall = {k: summary(rows[k]) for k in sorted(rows, key=order)}
-        data[name] = {"overall": overall}
-        lines += [f"### {name}", "", table(overall), ""]
-        tracked = [r for r in frames if r.mode == "tracking"]
-        if tracked:
-            per_trajectory = {
-                f"{trajectory}, {cloud}": summary(rs)
-                for trajectory, runs in grouped(tracked, lambda r: r.trajectory).items()
-                for cloud, rs in sorted(
-                    grouped(runs, lambda r: r.cloud).items(), key=lambda i: order(i[0])
-                )
-            }
-            data[name]["per_trajectory"] = per_trajectory
-            lines += [f"#### {name}: tracking per trajectory", "", table(per_trajectory), ""]
-        per_craft = {
-            f"{craft}, {k}": summary(rs)
-            for craft, craft_frames in grouped(frames, lambda r: r.spacecraft).items()
-            for k, rs in sorted(grouped(craft_frames, key).items(), key=lambda i: order(i[0]))
-        }
-        data[name]["per_spacecraft"] = per_craft
-        data[name]["frames"] = [asdict(r) for r in frames]
-        lines += [f"#### {name}: per spacecraft", "", table(per_craft), ""]
-    every = [r for frames in results.values() for r in frames]
-    reliable = [r for r in every if r.verdict == "reliable"]
-    wrong = sum(r.reliable_but_wrong for r in reliable)
-    lines.append(
-        f"Over all {len(every)} answers: {len(reliable)} marked reliable, of which {wrong} "
-        f"wrong (beyond {SUCCESS_DEG:g} degrees or {SUCCESS_M:g} m)."
-    )
-    if reliable:
-        rotation, translation = sigma_coverage(reliable)
-        lines += [
-            "",
-            "Of those marked reliable, the errors within 1 / 2 / 3 times the answer's own "
-            "sigma: rotation "
-            + " / ".join(f"{c:.0f}" for c in rotation)
-            + " %, translation "
-            + " / ".join(f"{c:.0f}" for c in translation)
-            + " % (an isotropic Gaussian error with that sigma per axis: "
-            + " / ".join(f"{c:.0f}" for c in GAUSSIAN_COVERAGE)
-            + " %).",
-        ]
-    return "\n".join(lines), data
-
-
-#: Per cent of the errors within 1, 2 and 3 sigma for an isotropic 3-D Gaussian error of
-#: standard deviation sigma per axis (the error's norm follows a chi distribution, 3 degrees).
-GAUSSIAN_COVERAGE = (19.9, 73.9, 97.1)
-
-
-def sigma_coverage(results: list[FrameResult]) -> tuple[list[float], list[float]]:
-    """Per cent of ``results`` whose rotation (then translation) error is within 1, 2 and 3
-    times the answer's ``rotation_sigma_deg`` (``translation_sigma_m``); an answer without a
-    sigma counts as not covered."""
-
-    def within(errors: np.ndarray, sigmas: np.ndarray) -> list[float]:
-        return [100 * float(np.mean(errors <= k * sigmas)) for k in (1, 2, 3)]
-
-    rows = np.array(
-        [
-            (r.rotation_deg, r.rotation_sigma_deg, r.translation_m, r.translation_sigma_m)
-            for r in results
-        ]
-    ).reshape(-1, 4)
-    return within(rows[:, 0], rows[:, 1]), within(rows[:, 2], rows[:, 3])
-
-
 def with_pose(sample: Sample, model: SpacecraftModel) -> Sample:
     """``sample`` (from ``make_sample``) with its true pose in the target's frame in meta."""
     R, t = model.file_frame_pose(
@@ -440,57 +293,3 @@ def split_ids(dataset: Path, split: str, limit: int) -> list[int]:
         int(m) for m, s in info["model_split"].items() if s == split and int(m) < info["models"]
     )
     return ids[:: max(1, len(ids) // limit)][:limit] if limit else ids
-
-
-def gallery_rows(
-    picks: list[tuple[FrameResult, Target, Sample]], method: Method, cloud: str
-) -> list[list[np.ndarray]]:
-    """One row per pick: gray | LIDAR returns | completed depth | the target drawn at the
-    pose estimated from ``cloud`` ("completed" by ``method``, or the raw returns) | ... at the
-    true pose; zoomed on the spacecraft."""
-    rows = []
-    for result, target, sample in picks:
-        K = Intrinsics(**sample.meta["intrinsics"])
-        depth, mask, _ = method(sample)
-        returns = back_project(sample.sparse, sample.sparse > 0, K)
-        points = back_project(depth, mask, K) if cloud != RAW else returns
-        estimate = estimate_pose(target.model, points, returns)
-        window = object_crop(sample.mask | mask)
-        scale = max(1, round((window[0].stop - window[0].start) / 256 / 2))
-        base = gray_bgr(sample.gray)
-        drawn = target.model.render_points
-        rotation_deg, translation_m = pose_errors(estimate.pose, truth_of(sample))
-        flag = ", ambiguous" if estimate.ambiguous else ""
-        rows.append(
-            [
-                labelled(base[window], f"{target.name} {result.range_m:.0f} m"),
-                labelled(
-                    dilated_returns(sample.sparse, 4)[window], f"{sample.meta['returns']} returns"
-                ),
-                labelled(colorize_depth(depth)[window], "completed depth"),
-                labelled(
-                    draw_points(base, estimate.pose.apply(drawn), K, radius=scale)[window],
-                    f"{cloud}: {rotation_deg:.1f} deg, {translation_m:.2f} m{flag}",
-                ),
-                labelled(
-                    draw_points(base, truth_of(sample).apply(drawn), K, radius=scale)[window],
-                    "truth",
-                ),
-            ]
-        )
-    return rows
-
-
-def read_report(path: Path) -> dict[str, list[FrameResult]]:
-    """The frame results of a ``report`` JSON, by evaluation name."""
-    data = json.loads(Path(path).read_text())
-    return {name: [FrameResult(**f) for f in v["frames"]] for name, v in data.items()}
-
-
-def pick_failures(results: list[FrameResult], cloud: str, count: int) -> list[FrameResult]:
-    """The ``count`` worst frames of ``cloud`` by rotation error, then its best frame at the
-    longest range for contrast."""
-    own = [r for r in results if r.cloud == cloud and np.isfinite(r.rotation_deg)]
-    worst = sorted(own, key=lambda r: -r.rotation_deg)[:count]
-    good = [r for r in own if r.success and r not in worst]
-    return worst + sorted(good, key=lambda r: -r.range_m)[:1]

@@ -7,6 +7,7 @@ generator, camera, LIDAR and scene ranges as the synthetic data, as a split of t
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
 from pathlib import Path
 
@@ -15,9 +16,11 @@ import numpy as np
 
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
-from sdcnet.metrics import MetricTable, frame_metrics
+from sdcnet.evaluation.scoring import Method, score_frame
+from sdcnet.meshes import read_mesh_folder
+from sdcnet.metrics import MetricTable, depth_table, frame_metrics, markdown_table
 from sdcnet.pointcloud import back_project
-from sdcnet.training.evaluate import Method, score_frame
+from sdcnet.training.data.generate import GenerateConfig, generate
 from sdcnet.visualize import (
     colorize_depth,
     dilated_returns,
@@ -107,3 +110,61 @@ def gallery(
     out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(out), montage(rows, tile=256))
     return out
+
+
+def render_real(meshes: str, data: Path, views: int, seed: int, workers: int) -> SampleStore:
+    """The real meshes' frames at ``data`` (``views`` per mesh), rendered on the first call."""
+    if not (data / "manifest.jsonl").exists():
+        config = GenerateConfig(
+            models=0, views=views, seed=seed, meshes=read_mesh_folder(meshes), split=(0, 0, 0)
+        )
+        generate(config, data, workers=workers)
+    return SampleStore(data)
+
+
+def evaluate_real(methods: dict[str, Method], store: SampleStore, out: Path) -> str:
+    """Every method on the real split, overall and per spacecraft: ``out/real_spacecraft.md``,
+    ``.json`` and ``gallery.png`` (drawn by the first method; the others' side views, the ONNX
+    model's left out as the first's twin). Returns the markdown."""
+    records = store.split("real")
+    out.mkdir(parents=True, exist_ok=True)
+    per_method = {
+        name: evaluate_per_model(method, store, records) for name, method in methods.items()
+    }
+    overall = {name: tables["all"].mean() for name, tables in per_method.items()}
+    lines = [
+        f"Real spacecraft (never trained on): {len(records)} frames of "
+        f"{len({r['model_name'] for r in records})} NASA models, rendered by `sdc-data` "
+        f"({store.info['command']} --meshes ...), mean over images.",
+        "",
+        "### All spacecraft",
+        "",
+        markdown_table(overall),
+        "",
+        depth_table(overall),
+        "",
+    ]
+    first = next(iter(per_method))
+    for name in sorted(k for k in per_method[first] if k != "all"):
+        rows = {method: tables[name].mean() for method, tables in per_method.items()}
+        lines += [f"### {name}", "", markdown_table(rows), "", depth_table(rows), ""]
+    (out / "real_spacecraft.md").write_text("\n".join(lines))
+    (out / "real_spacecraft.json").write_text(
+        json.dumps(
+            {
+                "title": "Real spacecraft (never trained on)",
+                "split": "real",
+                "images": len(records),
+                "results": overall,
+                "undefined": {n: t["all"].undefined() for n, t in per_method.items()},
+            },
+            indent=1,
+        )
+    )
+    others = {
+        name: method
+        for name, method in methods.items()
+        if name != first and not name.startswith("onnx:")  # the same model as the first
+    }
+    print(gallery(methods[first], store, records, out / "gallery.png", others))
+    return "\n".join(lines)

@@ -1,4 +1,4 @@
-"""The robustness suite (``sdc-train robustness``): every condition users fly, model against fill.
+"""The robustness suite (``sdc-eval robustness``): every condition users fly, model against fill.
 
 Each condition of ``sdcnet.training.data.conditions.ROBUSTNESS`` pushes one factor away from
 the paper's world (the Earth or the Sun behind the target, a wide camera with a rotating
@@ -22,15 +22,14 @@ import numpy as np
 from tqdm import tqdm
 
 from sdcnet.dataset_format import Sample, SampleStore
+from sdcnet.evaluation.real import gallery_row
+from sdcnet.evaluation.scoring import FILL, Method, StoredAnswers, classical, score_frame
 from sdcnet.meshes import MeshEntry
 from sdcnet.metrics import BAND_NAMES, MetricTable
 from sdcnet.training.data.conditions import ROBUSTNESS
 from sdcnet.training.data.generate import GenerateConfig, generate
-from sdcnet.training.evaluate import Method, StoredAnswers, classical, score_frame
-from sdcnet.training.real import gallery_row
 from sdcnet.visualize import montage
 
-FILL = "classical fill"
 #: The splits a condition's frames come from: never trained on.
 UNSEEN = ("test", "real")
 
