@@ -8,7 +8,7 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-from sdcnet.cli import add_debug_flag, run_command
+from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
 from sdcnet.evaluation.card import write_card
 from sdcnet.evaluation.evaluate import evaluate_split
 from sdcnet.evaluation.methods import methods_from
@@ -19,7 +19,6 @@ from sdcnet.meshes import read_mesh_folder
 from sdcnet.training.data.conditions import ROBUSTNESS
 
 #: What a user's mistake raises (a missing or bad file, a bad value): one line, exit 2.
-USER_ERRORS = {OSError: 2, ValueError: 2}
 REAL_MESHES = "../shared/real-meshes"
 
 
@@ -218,7 +217,7 @@ def add_pose_parser(sub: argparse._SubParsersAction) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    return run_command("sdc-eval", lambda: args.func(args), USER_ERRORS, args.debug)
+    return run_command("sdc-eval", lambda: args.func(args), FILE_AND_VALUE_ERRORS, args.debug)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-from sdcnet.cli import add_debug_flag, run_command
+from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
 from sdcnet.dataset_format import SampleStore
 from sdcnet.export.onnx_export import (
     MAX_DEPTH_ERROR_M,
@@ -122,7 +122,7 @@ def export(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    return run_command("sdc-export", lambda: export(args), {OSError: 2, ValueError: 2}, args.debug)
+    return run_command("sdc-export", lambda: export(args), FILE_AND_VALUE_ERRORS, args.debug)
 
 
 def calibration_frames(data: Path | None, count: int = 32) -> list:

@@ -16,6 +16,9 @@ from collections.abc import Callable, Mapping
 
 EXIT_BUG = 70  # EX_SOFTWARE in sysexits.h: an internal software error
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
+#: The user errors of the offline commands (sdc-data, sdc-train, sdc-eval, sdc-export): a file
+#: that cannot be read or written, a value that cannot be used; both exit 2, as argparse does.
+FILE_AND_VALUE_ERRORS: Mapping[type[Exception], int] = {OSError: 2, ValueError: 2}
 
 
 def add_debug_flag(parser: argparse.ArgumentParser) -> None:

@@ -26,11 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sdcnet.npyio import npy_bytes
+from sdcnet.npyio import ZIP_EPOCH, npy_bytes
 
 FORMAT_VERSION = 1
 ARRAYS = ("gray", "depth", "sparse")
-_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
 
 
 def sample_id(model_id: int, view: int) -> str:
@@ -58,9 +57,9 @@ def write_sample(path: Path, sample: Sample) -> None:
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=6) as zf:
         for name in ARRAYS:
             data = npy_bytes(getattr(sample, name))
-            zf.writestr(zipfile.ZipInfo(f"{name}.npy", _ZIP_EPOCH), data, zipfile.ZIP_DEFLATED)
+            zf.writestr(zipfile.ZipInfo(f"{name}.npy", ZIP_EPOCH), data, zipfile.ZIP_DEFLATED)
         meta = json.dumps(sample.meta, sort_keys=True).encode()
-        zf.writestr(zipfile.ZipInfo("meta.json", _ZIP_EPOCH), meta, zipfile.ZIP_DEFLATED)
+        zf.writestr(zipfile.ZipInfo("meta.json", ZIP_EPOCH), meta, zipfile.ZIP_DEFLATED)
     os.replace(tmp, path)
 
 

@@ -8,6 +8,10 @@ import io
 
 import numpy as np
 
+#: The time stamp of every member of the npz archives sdcnet writes (the zip format's earliest),
+#: so that the same arrays always give the same bytes.
+ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+
 
 def npy_bytes(array: np.ndarray, allow_pickle: bool = False) -> bytes:
     """The ``.npy`` file of ``array``, C-contiguous."""

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from sdcnet.camera import Intrinsics
+from sdcnet.npyio import ZIP_EPOCH
 from sdcnet.pointcloud import ply_header, ply_vertices
 from sdcnet.service.schemas import CompletionSummary, FrameSummary, ResponseFormat
 from sdcnet.service.spool import Spool
@@ -33,7 +34,6 @@ from sdcnet.service.spool import Spool
 if TYPE_CHECKING:
     from sdcnet.service.inference import Completed
 
-_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
 #: Bytes of an array encoded at a time (a multiple of 3, so that base64 slices join).
 SLICE_BYTES = 3 * 2**18
 MEDIA_TYPES = {
@@ -102,12 +102,12 @@ class _Npz:
     def __init__(self, arrays: dict[str, np.ndarray], spool: Spool):
         self.zip = zipfile.ZipFile(spool.file, "w", zipfile.ZIP_STORED)
         for name, array in arrays.items():
-            member = zipfile.ZipInfo(f"{name}.npy", _ZIP_EPOCH)
+            member = zipfile.ZipInfo(f"{name}.npy", ZIP_EPOCH)
             with self.zip.open(member, "w", force_zip64=array.nbytes > 2**31) as out:
                 np.lib.format.write_array(out, np.ascontiguousarray(array), allow_pickle=False)
 
     def finish(self, summary: CompletionSummary) -> None:
-        self.zip.writestr(zipfile.ZipInfo("meta.json", _ZIP_EPOCH), summary.model_dump_json())
+        self.zip.writestr(zipfile.ZipInfo("meta.json", ZIP_EPOCH), summary.model_dump_json())
         self.zip.close()
 
 

@@ -10,12 +10,11 @@ from dataclasses import MISSING, Field, fields
 from pathlib import Path
 from typing import get_args, get_type_hints
 
-from sdcnet.cli import add_debug_flag, run_command
+from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
 from sdcnet.training.checkpoint import ship_checkpoint
 from sdcnet.training.train import PRESETS, TrainConfig, Trainer, config_from_preset
 
 #: What a user's mistake raises (a missing or bad file, a bad value): one line, exit 2.
-USER_ERRORS = {OSError: 2, ValueError: 2}
 
 
 def flag_fields() -> list[Field]:
@@ -117,7 +116,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    return run_command("sdc-train", lambda: args.func(args), USER_ERRORS, args.debug)
+    return run_command("sdc-train", lambda: args.func(args), FILE_AND_VALUE_ERRORS, args.debug)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sdcnet.cli import add_debug_flag, run_command
+from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.training.data.conditions import WORLDS
@@ -287,7 +287,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    return run_command("sdc-data", lambda: args.func(args), {OSError: 2, ValueError: 2}, args.debug)
+    return run_command("sdc-data", lambda: args.func(args), FILE_AND_VALUE_ERRORS, args.debug)
 
 
 if __name__ == "__main__":

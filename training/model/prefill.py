@@ -15,7 +15,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-INVERT_M = 1000.0  # depths are inverted as INVERT_M - d: valid depths stay positive
+from sdcnet.evaluation.classical_fill import INVERT_M  # the classical fill's inversion, shared
 
 
 def _dilate(x: torch.Tensor, k: int) -> torch.Tensor:
