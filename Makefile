@@ -122,7 +122,7 @@ reports: $(STAMP)
 		--title "Synthetic test split, the paper's camera and LIDAR (18 unseen models, every fourth frame)"
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out models/sdcnet.onnx \
 		--metrics models/eval_test.json
-	$(PY) tests/test_answers_unchanged.py --write
+	$(PY) -m tests.test_answers_unchanged --write
 	$(VENV)/bin/sdc-eval evaluate --onnx models/sdcnet.onnx --data data/paper --split test --limit 288 \
 		--out models/eval_test_onnx.json \
 		--title "Synthetic test split through onnxruntime (the service's numbers, every fourth frame)"

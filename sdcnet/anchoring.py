@@ -16,14 +16,25 @@ module corrects the depth by its residuals at the returns (measured - predicted,
    from the returns' spacing): at a return the correction is mostly its own, between returns a
    weighted mean of the near ones, and it fades to nothing a few ``sigma_px`` away from any.
 
+Anchoring changes how far the depth can be trusted, and the returns say how good the network
+was on this frame, so the network's sigma is recombined with what they measured
+(``anchored_sigma``): it is first rescaled by the frame's median ratio of the network's error
+at the returns to its sigma there (a frame of another camera, LIDAR or sky is harder or easier
+than the frames sigma was calibrated on, and the returns show which); next to a return the
+depth is the measurement, so that sigma counts ``SIGMA_AT_RETURN`` times, away from every
+return ``SIGMA_AWAY`` times; where the network missed the returns by more than the noise, the
+depth between them is uncertain by about as much (the *misfit*); and no depth is better than
+the LIDAR's own noise.
+
 It runs on the working grid, so it costs the same (a few milliseconds) whatever the camera and
-the frame's size. The choice of ``SIGMA_PER_SPACING``, ``SIGMA_BOUNDS_PX`` and ``SHRINK``:
-docs/development.md, "Measurements".
+the frame's size. The choice of ``SIGMA_PER_SPACING``, ``SIGMA_BOUNDS_PX`` and ``SHRINK``, and
+the fit of the sigma's coefficients: docs/development.md, "Measurements".
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -39,6 +50,38 @@ SHRINK = 0.75
 #: Median absolute deviation -> standard deviation, for Gaussian noise.
 MAD_TO_STD = 1.4826
 
+#: ``anchored_sigma``'s coefficients (fit on validation frames of the mixed world: see the
+#: module's docstring for where): the network's sigma, rescaled by the frame's error ratio at
+#: the returns, counts ``SIGMA_AT_RETURN`` times at a return and about ``SIGMA_AWAY`` times
+#: away from every return, ...
+SIGMA_AT_RETURN = 1.25
+SIGMA_AWAY = 10.0
+#: ... the local misfit (metres) and the frame's noise (metres, a standard deviation) this
+#: many times, all in quadrature.
+SIGMA_PER_MISFIT = 2.0
+SIGMA_PER_NOISE = 0.5
+#: The frame's error ratio is at least this: a network that fits the returns exactly is not
+#: exact between them.
+MIN_ERROR_RATIO = 0.02
+
+
+@dataclass(frozen=True)
+class Anchored:
+    """The anchored depth (h, w metres) and what anchoring measured on the same grid: the
+    returns' ``reach`` (1 at a return, fading to 0 a few kernel widths away), the local
+    ``misfit`` (metres: the kernel-weighted mean of the returns' residuals less the noise),
+    the frame's ``noise_m`` (metres, the residuals' robust standard deviation), and where the
+    returns on the mask are (``rows``, ``cols``) with the depth's ``residual`` there (metres,
+    measured - predicted, before anchoring)."""
+
+    depth: np.ndarray
+    reach: np.ndarray
+    misfit: np.ndarray
+    noise_m: float
+    rows: np.ndarray
+    cols: np.ndarray
+    residual: np.ndarray
+
 
 def spreading_sigma_px(spacing_px: float | None, frame_px_per_pixel: float) -> float:
     """The kernel's standard deviation in the grid's pixels, for returns ``spacing_px`` apart
@@ -53,26 +96,51 @@ def spreading_sigma_px(spacing_px: float | None, frame_px_per_pixel: float) -> f
 
 def anchor_to_returns(
     depth: np.ndarray, mask: np.ndarray, sparse: np.ndarray, sigma_px: float
-) -> np.ndarray:
+) -> Anchored:
     """``depth`` (H, W metres) corrected by its residuals at the returns of ``sparse`` (H, W
     metres, 0 = none) that fall on ``mask`` (H, W bool, the spacecraft: returns off it are
     not the depth's to agree with), spread with a Gaussian of ``sigma_px`` pixels; unchanged
-    without such returns. The correction covers the whole grid, so that resampling the mask
-    to the frame never meets an uncorrected pixel at its border."""
+    (reach, misfit and noise 0) without such returns. The correction covers the whole grid,
+    so that resampling the mask to the frame never meets an uncorrected pixel at its
+    border."""
     rows, cols = np.nonzero((sparse > 0) & mask & (depth > 0))
     if len(rows) == 0:
-        return depth
+        nothing = np.zeros(depth.shape, np.float32)
+        return Anchored(depth, nothing, nothing, 0.0, rows, cols, np.zeros(0, np.float32))
     residual = sparse[rows, cols] - depth[rows, cols]
-    noise = SHRINK * MAD_TO_STD * float(np.median(np.abs(residual)))
-    local = np.sign(residual) * np.maximum(np.abs(residual) - noise, 0.0)
-    weighted = np.zeros(depth.shape, np.float32)
-    count = np.zeros(depth.shape, np.float32)
-    weighted[rows, cols] = local
-    count[rows, cols] = 1.0
+    noise_m = MAD_TO_STD * float(np.median(np.abs(residual)))
+    local = np.sign(residual) * np.maximum(np.abs(residual) - SHRINK * noise_m, 0.0)
     size = 2 * math.ceil(2 * sigma_px) + 1
-    blur = {"ksize": (size, size), "sigmaX": sigma_px, "borderType": cv2.BORDER_CONSTANT}
-    weighted, count = cv2.GaussianBlur(weighted, **blur), cv2.GaussianBlur(count, **blur)
     centre = float(cv2.getGaussianKernel(size, sigma_px)[size // 2, 0]) ** 2
+
+    def spread(values: np.ndarray) -> np.ndarray:
+        grid = np.zeros(depth.shape, np.float32)
+        grid[rows, cols] = values
+        return cv2.GaussianBlur(grid, (size, size), sigma_px, borderType=cv2.BORDER_CONSTANT)
+
+    count = spread(np.ones(len(rows), np.float32))
+    total = np.maximum(count, 1e-12)
     reach = np.minimum(count / centre, 1.0)  # 1 at a return, fading away from them
-    correction = reach * weighted / np.maximum(count, 1e-12)
-    return (depth + correction).astype(np.float32)
+    correction = reach * spread(local) / total
+    misfit = spread(np.abs(local)) / total
+    anchored = (depth + correction).astype(np.float32)
+    return Anchored(anchored, reach, misfit, noise_m, rows, cols, residual)
+
+
+def error_ratio(sigma: np.ndarray, anchored: Anchored) -> float:
+    """The frame's median of |residual| / ``sigma`` at the returns on the mask (at least
+    ``MIN_ERROR_RATIO``); without such returns, the ratio that leaves ``anchored_sigma`` the
+    network's own sigma."""
+    if anchored.residual.size == 0:
+        return 1.0 / math.hypot(SIGMA_AT_RETURN, SIGMA_AWAY)
+    at_returns = np.maximum(sigma[anchored.rows, anchored.cols], 1e-9)
+    return max(float(np.median(np.abs(anchored.residual) / at_returns)), MIN_ERROR_RATIO)
+
+
+def anchored_sigma(sigma: np.ndarray, anchored: Anchored) -> np.ndarray:
+    """The network's ``sigma`` (h, w metres) recombined with what anchoring measured (see the
+    module's docstring): float32 metres on the same grid."""
+    rescaled = sigma * error_ratio(sigma, anchored)
+    scale = SIGMA_AT_RETURN**2 + (SIGMA_AWAY * (1.0 - anchored.reach)) ** 2
+    variance = rescaled * rescaled * scale + (SIGMA_PER_MISFIT * anchored.misfit) ** 2
+    return np.sqrt(variance + (SIGMA_PER_NOISE * anchored.noise_m) ** 2).astype(np.float32)

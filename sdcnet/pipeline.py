@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from sdcnet.anchoring import anchor_to_returns, spreading_sigma_px
+from sdcnet.anchoring import anchor_to_returns, anchored_sigma, spreading_sigma_px
 from sdcnet.returns import scatter_nearest
 
 ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
@@ -400,8 +400,8 @@ def complete(
     threshold: float = 0.5,
 ) -> Completion:
     """Run ``model`` on the spacecraft's region of one frame, resampled to its working grid
-    (``working_inputs``), anchor its depth to the returns (``anchor_to_returns``) and paste
-    the answer back at the frame's resolution."""
+    (``working_inputs``), anchor its depth to the returns (``anchor_to_returns``) and its
+    sigma with it (``anchored_sigma``), and paste the answer back at the frame's resolution."""
     inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels)
     grid = inputs.grid
     depth_w, prob_w, sigma_w = run_model(model, inputs)
@@ -409,13 +409,14 @@ def complete(
     prob_w = np.where(kept | (prob_w <= threshold), prob_w, 0.0).astype(np.float32)
     rows, cols = return_pixels(inputs.sparse)
     spread_px = spreading_sigma_px(return_spacing(rows, cols), 1.0 / grid.scale[1])
-    depth_w = anchor_to_returns(depth_w, prob_w > threshold, inputs.sparse, spread_px)
+    anchored = anchor_to_returns(depth_w, prob_w > threshold, inputs.sparse, spread_px)
     returns = inputs.sparse[rows, cols]
     footprint = float(returns.mean()) / inputs.focal_px if returns.size else 1.0
     prob_crop = resample_image(prob_w, grid.region.shape)
-    depth_crop = resample_depth(depth_w, grid.region.shape, footprint)
+    depth_crop = resample_depth(anchored.depth, grid.region.shape, footprint)
     mask_crop = kept if grid.identity else prob_crop > threshold
     sigma_crop = None
     if sigma_w is not None:
+        sigma_w = anchored_sigma(sigma_w, anchored)
         sigma_crop = resample_depth(sigma_w, grid.region.shape, math.inf) * mask_crop
     return Completion(depth_crop * mask_crop, mask_crop, prob_crop, grid, gray.shape, sigma_crop)

@@ -5,7 +5,7 @@ point cloud that ``POST /complete`` gave for it with the shipped model, and a fe
 say how large a change is when one happens. A change of the model or of what the pipeline
 computes is a new model version: rewrite the file with
 
-    python tests/test_answers_unchanged.py --write
+    python -m tests.test_answers_unchanged --write
 
 (``make reports`` does, after exporting) and say in the commit why the answers changed. A
 fresh export of ``models/sdcnet.pt`` must answer the same: the training-side code (model,
