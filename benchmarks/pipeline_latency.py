@@ -6,7 +6,8 @@
 What the service does between decoding and encoding a frame, on the robustness suite's frames
 (``sdc-eval robustness`` renders them: the paper's camera and others from 5 to 60 deg, 512 to
 2048 px, docking to 300 m): crop to the LIDAR-bounded region, resample to the working grid,
-onnxruntime, paste back, back-project the cloud. Per condition and over all frames: median,
+onnxruntime, paste back, back-project the cloud, with malloc set as the service sets it
+(``sdcnet.allocator``). Per condition and over all frames: median,
 p95 and max in milliseconds, p95 / median, against the 100 ms a 10 Hz LIDAR leaves. With
 ``--previous COMMIT``, the same frames through the previous shipped model and its own pipeline
 (``benchmarks/previous_model.py``, run after this one in the same command). Writes
@@ -26,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
+from sdcnet.allocator import configure_malloc
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
 from sdcnet.pipeline import complete
@@ -103,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
 
+    configure_malloc()  # as sdc-serve does
     model = OnnxModel(args.onnx, provider="cpu", threads=args.threads, spin_wait=False)
     conditions = sorted(d for d in args.data.iterdir() if (d / "manifest.jsonl").exists())
     times = {c.name: time_frames(model, SampleStore(c), args.repeats) for c in conditions}

@@ -7,15 +7,14 @@ or broken file is one clear line and exit status 2, not a traceback.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import logging
-import os
 import sys
 from pathlib import Path
 
 import uvicorn
 from pydantic import ValidationError
 
+from sdcnet.allocator import configure_malloc
 from sdcnet.calibration import CalibrationError
 from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.runtime import ModelLoadError
@@ -28,27 +27,6 @@ from sdcnet.service.settings import Settings
 from sdcnet.targets import TargetError
 
 logger = logging.getLogger("sdcnet.service")
-
-#: glibc malloc arenas the process may use (mallopt M_ARENA_MAX). Each thread that allocates
-#: gets an arena, up to 8 per core, and every arena keeps the freed buffers of the requests it
-#: served (tens of MB per 1024 x 1024 frame): without a cap, the resident memory climbs for
-#: minutes, a step each time another worker thread serves its first request (benchmarks.load
-#: --soak, random weights: 230 -> 310 MiB in 3 minutes; with 2 arenas, flat and no slower).
-#: The MALLOC_ARENA_MAX environment variable overrides it.
-MALLOC_ARENAS = 2
-_M_ARENA_MAX = -8
-
-
-def limit_malloc_arenas(count: int = MALLOC_ARENAS) -> None:
-    """Cap glibc's malloc arenas before any thread starts; nothing on other C libraries."""
-    if "MALLOC_ARENA_MAX" in os.environ:
-        return
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(_M_ARENA_MAX, count)
-    except (OSError, AttributeError):
-        pass
-
 
 #: flag, setting, type; each setting is also the environment variable SDCNET_<SETTING>.
 FLAGS = [
@@ -133,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
 def serve(args: argparse.Namespace) -> int:
     """Load the camera, the model and the targets, then serve until stopped; 2 with one line
     for a bad setting or file."""
-    limit_malloc_arenas()
+    configure_malloc()
     given = {setting: getattr(args, setting) for _, setting, _ in FLAGS}
     try:
         settings = Settings(**{k: v for k, v in given.items() if v is not None})
