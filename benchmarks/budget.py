@@ -26,7 +26,7 @@ from sdcnet.dataset_format import SampleStore
 from sdcnet.evaluation.classical_fill import classical_fill
 from sdcnet.metrics import MetricTable, frame_report
 from sdcnet.pipeline import complete
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 
 
 def measure(model: OnnxModel, stores: list[SampleStore], budget: int) -> tuple[dict, list[float]]:

@@ -66,7 +66,7 @@ def write_markdown(name: str, title: str, body: str) -> Path:
 def onnx_variants(fp32: Path, threads: int) -> dict:
     """'onnxruntime FP32/FP16/INT8' -> loaded CPU model, for the files that exist beside ``fp32``
     (``NAME.onnx``, ``NAME.fp16.onnx``, ``NAME.int8.onnx``, as ``sdc-export --variants`` writes)."""
-    from sdcnet.runtime import OnnxModel
+    from sdcnet.runtime.onnx import OnnxModel
 
     found = {}
     for label, suffix in (("FP32", ""), ("FP16", ".fp16"), ("INT8", ".int8")):

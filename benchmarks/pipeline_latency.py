@@ -32,7 +32,7 @@ from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 
 BUDGET_MS = 100.0
 

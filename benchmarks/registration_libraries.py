@@ -32,7 +32,7 @@ from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
 from sdcnet.registration import TargetModel, estimate_pose
 from sdcnet.rigid import Pose, axis_angle, pose_errors
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.targets import load_target
 from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 

@@ -57,7 +57,7 @@ from sdcnet.client.transport import Transport
 from sdcnet.dataset_format import Sample, SampleStore, read_sample
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense, write_returns_csv
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.service.decode import frame_of
 from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
 from sdcnet.service.settings import Settings

@@ -60,7 +60,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     import onnxruntime
 
     from sdcnet.pipeline import complete
-    from sdcnet.runtime import OnnxModel
+    from sdcnet.runtime.onnx import OnnxModel
 
     gray = cv2.imread(str(args.dir / "gray.png"), cv2.IMREAD_UNCHANGED)
     sparse = np.load(args.dir / "sparse.npy", allow_pickle=False)

@@ -40,7 +40,7 @@ def methods_from(
         fn = torch_segmentation_fn(model) if segmentation_only else torch_model_fn(model)
         methods[name] = network(fn, model.config.stride)
     if onnx:
-        from sdcnet.runtime import OnnxModel
+        from sdcnet.runtime.onnx import OnnxModel
 
         onnx_model = OnnxModel(onnx)
         methods[f"onnx:{Path(onnx).name}"] = network(

@@ -67,7 +67,7 @@ def run_pose(run: PoseRun) -> None:
     scratch in ``failures.png`` (the first cloud) and ``failures_raw.png``."""
     methods: dict[str, Method] = {}
     if "completed" in run.clouds:
-        from sdcnet.runtime import OnnxModel
+        from sdcnet.runtime.onnx import OnnxModel
 
         onnx = OnnxModel(run.onnx, threads=run.threads)
         methods["completed"] = network(onnx.run, onnx.stride, onnx.info.work_pixels)

@@ -18,9 +18,10 @@ import numpy as np
 import onnx
 import torch
 
-from sdcnet import __version__, runtime
+from sdcnet import __version__
 from sdcnet.pipeline import WORK_PIXELS
-from sdcnet.runtime import INPUTS, OUTPUTS, OnnxModel
+from sdcnet.runtime.interface import INPUTS, OUTPUTS, metadata_props
+from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.training.model.sdcnet import SDCNet
 
 OPSET = 17
@@ -32,10 +33,10 @@ MAX_SIGMA_ERROR = 1e-3  # relative
 def network_metadata_props(
     model: SDCNet, version: str, metrics: dict | None = None, extra: dict | None = None
 ) -> dict:
-    """The metadata_props of network ``model``'s ONNX file: ``sdcnet.runtime.metadata_props``
-    (all the service needs besides the graph) and the architecture (``model_config``) it was
-    exported from."""
-    return runtime.metadata_props(
+    """The metadata_props of network ``model``'s ONNX file: ``metadata_props`` (all the
+    service needs besides the graph) and the architecture (``model_config``) it was exported
+    from."""
+    return metadata_props(
         version,
         model.config.stride,
         model.config.factor,

@@ -17,7 +17,8 @@ from typing import Any
 from fastapi import FastAPI
 
 from sdcnet import __version__
-from sdcnet.runtime import ModelLoadError, OnnxModel, Runtime
+from sdcnet.runtime.interface import ModelLoadError, Runtime
+from sdcnet.runtime.registry import load_runtime
 from sdcnet.service.admission import Admission
 from sdcnet.service.camera import ServiceCamera, configured_camera
 from sdcnet.service.errors import install_error_handlers
@@ -44,20 +45,18 @@ Every error, whatever its status, is `{"error": {"code": ..., "message": ...}}`
 
 
 def load_model(settings: Settings) -> Runtime:
-    """The ONNX model the settings name, checked by one inference on a small frame; raises
-    ``ModelLoadError`` with a clear message, so that a file that loads but cannot serve stops
-    the start-up rather than failing every request."""
+    """The model the settings name under the runtime they choose, checked by one inference on
+    a small frame; raises ``ModelLoadError`` with a clear message, so that a file that loads
+    but cannot serve stops the start-up rather than failing every request."""
     if settings.model_path.is_dir():
         raise ModelLoadError(f"{settings.model_path} is a directory, not an ONNX model file")
-    try:
-        model = OnnxModel(
-            settings.model_path, settings.provider, settings.threads, settings.spin_wait
-        )
-    except (ValueError, TypeError, KeyError) as exc:  # sdcnet metadata that does not parse
-        raise ModelLoadError(
-            f"{settings.model_path} is not a usable sdcnet model: its metadata does not parse "
-            f"({type(exc).__name__}: {exc})"
-        ) from exc
+    model = load_runtime(
+        settings.runtime,
+        settings.model_path,
+        settings.provider,
+        settings.threads,
+        settings.spin_wait,
+    )
     self_test(model)
     return model
 

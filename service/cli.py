@@ -17,7 +17,7 @@ from pydantic import ValidationError
 from sdcnet.allocator import configure_malloc
 from sdcnet.calibration import CalibrationError
 from sdcnet.cli import add_debug_flag, run_command
-from sdcnet.runtime import ModelLoadError
+from sdcnet.runtime.interface import ModelLoadError
 from sdcnet.service.app import create_app, load_model
 from sdcnet.service.budget import budget
 from sdcnet.service.camera import configured_camera
@@ -31,6 +31,7 @@ logger = logging.getLogger("sdcnet.service")
 #: flag, setting, type; each setting is also the environment variable SDCNET_<SETTING>.
 FLAGS = [
     ("--model", "model_path", Path),
+    ("--runtime", "runtime", str),
     ("--provider", "provider", str),
     ("--threads", "threads", int),
     ("--targets", "targets", Path),
@@ -83,8 +84,8 @@ def _help(setting: str) -> str:
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="sdc-serve",
-        description="Serve SDCNet depth completion over HTTP (FastAPI + onnxruntime). Flags "
-        "override the environment variables named in brackets.",
+        description="Serve SDCNet depth completion over HTTP (FastAPI; onnxruntime unless "
+        "--runtime says otherwise). Flags override the environment variables named in brackets.",
     )
     for flag, setting, kind in FLAGS:
         p.add_argument(flag, dest=setting, type=kind, help=_help(setting))

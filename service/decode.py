@@ -261,37 +261,47 @@ def _npy(data: bytes, max_pixels: int, frame: tuple[int, int] | None) -> np.ndar
     return _npy_floats("sparse", data, dense_map)
 
 
+def _too_many_returns(most: int, frame: tuple[int, int]) -> ApiError:
+    width, height = frame
+    return ApiError(
+        413,
+        "too_large",
+        f"more than {most} returns, the most this service takes for a {width} x {height} "
+        "frame (at most one per pixel, and max_returns)",
+    )
+
+
+def _returns_shape_check(most: int, frame: tuple[int, int]) -> Callable[[tuple[int, ...]], None]:
+    """The check every returns format makes of the list's shape once its header gives it, before
+    the values are read: (N, 3) (row, col, z_m) with N at most ``most`` for ``frame`` =
+    (width, height)."""
+
+    def check(shape: tuple[int, ...]) -> None:
+        if len(shape) != 2 or shape[1] != 3:
+            raise ApiError(
+                422,
+                "wrong_shape",
+                f"returns .npy must be (N, 3): row, col, z_m; got shape {shape}",
+            )
+        if shape[0] > most:
+            raise _too_many_returns(most, frame)
+
+    return check
+
+
 def decode_returns(data: bytes, most: int, frame: tuple[int, int]) -> np.ndarray:
     """``.npy`` (N, 3) float32/float64 or CSV text (header ``row,col,z_m``) bytes -> the
     returns as float32 (N, 3): row, column (pixel indices), Z metres; at most ``most`` of
     them, counted before they are parsed (a ``frame`` = (width, height) holds that many).
     Checked against the frame by ``sparse_from_returns``."""
     _not_empty("returns", data)
-    width, height = frame
-    too_many = ApiError(
-        413,
-        "too_large",
-        f"more than {most} returns, the most this service takes for a {width} x {height} "
-        "frame (at most one per pixel, and max_returns)",
-    )
     if sparse_format(data) == "npy":
-
-        def return_list(shape: tuple) -> None:
-            if len(shape) != 2 or shape[1] != 3:
-                raise ApiError(
-                    422,
-                    "wrong_shape",
-                    f"returns .npy must be (N, 3): row, col, z_m; got shape {shape}",
-                )
-            if shape[0] > most:
-                raise too_many
-
-        return _npy_floats("returns", data, return_list)
-    try:
+        return _npy_floats("returns", data, _returns_shape_check(most, frame))
+    try:  # the CSV parser counts the lines itself, before it parses them (N rows of 3 columns)
         return parse_returns_csv(data, "returns", most)
     except ReturnsError as exc:
         if exc.code == "too_many_returns":
-            raise too_many from None
+            raise _too_many_returns(most, frame) from None
         if exc.code == "not_text":
             raise ApiError(
                 415,

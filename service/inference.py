@@ -23,7 +23,7 @@ from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.compact import mask_window
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import back_project, statistical_outliers
-from sdcnet.runtime import ModelLoadError, Runtime
+from sdcnet.runtime.interface import ModelLoadError, Runtime
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
 from sdcnet.service.encode import MEDIA_TYPES, encode

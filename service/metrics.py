@@ -1,11 +1,16 @@
 """Prometheus metrics, named after NVIDIA Triton's ``nv_inference_*`` with an ``sdcnet_`` prefix.
 
-- ``sdcnet_inference_request_success_total``: POST /complete answered 2xx;
+The ``sdcnet_inference_*`` metrics count the inference requests: those of every route that
+takes an inference slot (``sdcnet.service.admission.TAKES_SLOT``: ``POST /complete``, ``POST
+/v2/models/sdcnet/infer``, ``POST /pose``), which the admission middleware sees end.
+
+- ``sdcnet_inference_request_success_total``: answered 2xx;
 - ``sdcnet_inference_request_failure_total{reason}``: answered otherwise; ``reason`` is the
   error code of the JSON answer (``overloaded``, ``too_large``, ``no_returns``...);
 - ``sdcnet_inference_request_duration_seconds``: successful requests, first byte in to last
   byte out;
-- ``sdcnet_inference_phase_duration_seconds{phase}``: decode / queue / inference / encode;
+- ``sdcnet_inference_phase_duration_seconds{phase}``: decode / queue / inference / encode (and
+  the phases of a route's own, ``POST /pose``'s cloud and registration);
 - ``sdcnet_inference_pending_requests``: requests admitted and not yet answered;
 - ``sdcnet_model_info{version, provider, threads}``; and the process collector's
   ``process_*`` (CPU seconds, resident memory, open files).
@@ -58,31 +63,32 @@ class ServiceMetrics:
         ProcessCollector(registry=self.registry)
         self.success = Counter(
             "sdcnet_inference_request_success",
-            "POST /complete requests answered with 2xx",
+            "Inference requests (every route that takes an inference slot) answered with 2xx",
             registry=self.registry,
         )
         self.failure = Counter(
             "sdcnet_inference_request_failure",
-            "POST /complete requests answered otherwise, by error code",
+            "Inference requests answered otherwise, by error code",
             ["reason"],
             registry=self.registry,
         )
         self.request_duration = Histogram(
             "sdcnet_inference_request_duration_seconds",
-            "Successful POST /complete requests, first byte in to last byte out",
+            "Successful inference requests, first byte in to last byte out",
             buckets=LATENCY_BUCKETS,
             registry=self.registry,
         )
         self.phase_duration = Histogram(
             "sdcnet_inference_phase_duration_seconds",
-            "Successful POST /complete requests by phase: decode, queue, inference, encode",
+            "Successful inference requests by phase: decode, queue, inference, encode, and "
+            "those of a route's own",
             ["phase"],
             buckets=LATENCY_BUCKETS,
             registry=self.registry,
         )
         self.pending = Gauge(
             "sdcnet_inference_pending_requests",
-            "POST /complete requests admitted and not yet answered",
+            "Inference requests admitted and not yet answered",
             registry=self.registry,
         )
         self.model = Info("sdcnet_model", "The loaded model", registry=self.registry)

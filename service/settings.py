@@ -12,6 +12,8 @@ from fastapi import Request
 from pydantic import Field, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from sdcnet.runtime.registry import DEFAULT_RUNTIME, RUNTIMES
+
 
 def shipped_model_path() -> Path:
     """The model installed with the package: ``sdcnet/models/sdcnet.onnx``."""
@@ -38,16 +40,20 @@ class Settings(BaseSettings):
     model_path: Path = Field(
         default_factory=shipped_model_path, description="ONNX model file (default: shipped)"
     )
+    runtime: str = Field(
+        default=DEFAULT_RUNTIME,
+        description=f"the inference runtime that runs the model: {', '.join(sorted(RUNTIMES))}",
+    )
     provider: str | None = Field(
         default=None,
-        description="onnxruntime execution provider, short ('cpu', 'cuda', 'tensorrt', "
-        "'openvino') or in full ('TensorrtExecutionProvider'); "
+        description="where the runtime runs the model; onnxruntime's execution provider, short "
+        "('cpu', 'cuda', 'tensorrt', 'openvino') or in full ('TensorrtExecutionProvider'); "
         "default: CUDA when onnxruntime-gpu and a GPU are present, else CPU",
     )
     threads: int = Field(
         default_factory=available_cpus,
         ge=1,
-        description="onnxruntime intra-op threads (default: the CPUs this process may use)",
+        description="the runtime's intra-op threads (default: the CPUs this process may use)",
     )
     spin_wait: bool = Field(
         default=False,
@@ -139,6 +145,13 @@ class Settings(BaseSettings):
     log_level: Literal["critical", "error", "warning", "info", "debug"] = Field(
         default="info", description="critical, error, warning, info or debug"
     )
+
+    @field_validator("runtime")
+    @classmethod
+    def _a_known_runtime(cls, value: str) -> str:
+        if value not in RUNTIMES:
+            raise ValueError(f"not a runtime here; the runtimes are {sorted(RUNTIMES)}")
+        return value
 
     @field_validator("max_requests")
     @classmethod

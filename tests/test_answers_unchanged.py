@@ -28,7 +28,7 @@ from sdcnet.client.api import Client
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
 from sdcnet.returns import read_returns_csv
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.service.settings import shipped_model_path
 from tests.support.serving import running_service
 

@@ -27,7 +27,7 @@ from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import read_ply
 from sdcnet.returns import returns_from_dense, write_returns_csv
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 from tests.support.frames import png_bytes, synthetic_frame, write_dataset
 from tests.support.models import TINY_VERSION
 from tests.support.serving import running_service

@@ -11,7 +11,7 @@ from sdcnet.evaluation.classical_fill import classical_fill, return_spacing
 from sdcnet.evaluation.robustness import run_suite
 from sdcnet.evaluation.scoring import StoredAnswers, network, score_frame
 from sdcnet.metrics import uncertainty_metrics
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 from tests.support.models import tiny_model
 
 

@@ -14,7 +14,8 @@ from sdcnet.export.cli import parity_frames
 from sdcnet.export.onnx_export import export_onnx, network_metadata_props, parity_check
 from sdcnet.export.variants import float_nodes, to_fp16, to_int8
 from sdcnet.pipeline import complete
-from sdcnet.runtime import ModelLoadError, OnnxModel
+from sdcnet.runtime.interface import ModelLoadError
+from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.training.checkpoint import save_checkpoint
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
 

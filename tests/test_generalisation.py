@@ -8,7 +8,7 @@ import pytest
 
 from sdcnet.camera import Intrinsics
 from sdcnet.pipeline import complete
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.service.settings import shipped_model_path
 from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, model_splits
 from sdcnet.training.data.lidar import ScanningLidar, scan_lidar

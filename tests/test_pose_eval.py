@@ -18,7 +18,7 @@ from sdcnet.evaluation.pose_eval import (
 from sdcnet.evaluation.pose_report import report, sigma_coverage, summary
 from sdcnet.evaluation.scoring import network
 from sdcnet.rigid import Pose, axis_angle, pose_errors
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.service.settings import shipped_model_path
 from sdcnet.targets import prepare_target
 from sdcnet.training.data.generate import GenerateConfig, build_spacecraft

@@ -35,7 +35,7 @@ from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project, read_ply, statistical_outliers
 from sdcnet.returns import returns_from_dense, scatter_nearest
-from sdcnet.runtime import OnnxModel
+from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.service.admission import slot_routes
 from sdcnet.service.app import create_app
 from sdcnet.service.camera import ANSWER_FRAME

@@ -23,7 +23,7 @@ from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
 from sdcnet.returns import returns_from_dense, write_returns_csv
-from sdcnet.runtime import SPIN_WAIT, OnnxModel
+from sdcnet.runtime.onnx import SPIN_WAIT, OnnxModel
 from sdcnet.service.app import load_model
 from sdcnet.service.settings import Settings
 from tests.support.frames import png_bytes, synthetic_frame

@@ -11,18 +11,47 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from fastapi.dependencies.models import Dependant
+from fastapi.routing import APIRoute
 
 from sdcnet.camera import PAPER_CAMERA, Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense
+from sdcnet.service.admission import slot_routes
+from sdcnet.service.forms import frame_form
+from sdcnet.service.routes import ROUTERS
 from tests.support.frames import png_bytes, v2_inputs
 from tests.support.targets import write_targets
 
-COMPLETE = "POST /complete"
 V2_INFER = "POST /v2/models/sdcnet/infer"
 POSE = "POST /pose"
 FUZZ_TARGET = "box"  # the target fuzz_targets() writes
+
+
+def _operations(routes: list[APIRoute]) -> frozenset[str]:
+    """schemathesis's names of the routes' operations ("POST /complete")."""
+    return frozenset(f"{method} {route.path}" for route in routes for method in route.methods)
+
+
+def _takes_frame_form(dependant: Dependant) -> bool:
+    return any(sub.call is frame_form or _takes_frame_form(sub) for sub in dependant.dependencies)
+
+
+#: The service's inference operations, those that take an inference slot (``TAKES_SLOT``): each
+#: must answer the fuzzer's valid cases, read from the routes so that a new one is fuzzed as
+#: such without a list to edit here.
+INFERENCE_OPERATIONS = _operations(list(slot_routes(ROUTERS)))
+#: The operations whose body is one frame's form (``sdcnet.service.forms.FrameForm``): their
+#: valid cases get a real frame (``real_files_for_valid_cases``).
+FRAME_FORM_OPERATIONS = _operations(
+    [
+        route
+        for router in ROUTERS
+        for route in router.routes
+        if isinstance(route, APIRoute) and _takes_frame_form(route.dependant)
+    ]
+)
 
 
 def fuzz_targets(folder: Path) -> Path:
@@ -99,18 +128,18 @@ def real_files_for_valid_cases(context, case, kwargs: dict) -> None:
     refused (rightly) and the positive_data_acceptance check would test nothing. Every other
     field keeps its generated value (intrinsics, depth_scale, outlier_removal, format; the v2
     request's id, parameters and outputs), intrinsics only where they fit the frame
-    (``_fitting_intrinsics``). ``POST /pose`` takes the form of ``POST /complete``
-    and more: its valid cases also name the fuzzed service's target (``fuzz_targets``), send a
-    pose as ``init`` when they send one, and keep the frame's own intrinsics and depths (see
-    ``_pose_fields``). The frame goes in the transport's arguments, so the
-    case itself (and its positive label) is left as generated. Negative cases are sent as
-    generated.
+    (``_fitting_intrinsics``); so for every operation that takes a frame's form
+    (``FRAME_FORM_OPERATIONS``). ``POST /pose`` takes that form and more: its valid cases also
+    name the fuzzed service's target (``fuzz_targets``), send a pose as ``init`` when they send
+    one, and keep the frame's own intrinsics and depths (see ``_pose_fields``). The frame goes
+    in the transport's arguments, so the case itself (and its positive label) is left as
+    generated. Negative cases are sent as generated.
     """
     meta = case.meta
     if meta is None or meta.generation.mode.value != "positive":
         return
     operation = f"{case.method.upper()} {case.path}"
-    if operation in (COMPLETE, POSE) and isinstance(case.body, dict):
+    if operation in FRAME_FORM_OPERATIONS and isinstance(case.body, dict):
         fields = {k: v for k, v in case.body.items() if k not in ("gray", "sparse", "returns")}
         fields = _pose_fields(fields) if operation == POSE else _fitting_intrinsics(fields)
         as_returns = "returns" in case.body and "sparse" not in case.body

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sdcnet.runtime import INPUTS, OUTPUTS, metadata_props
+from sdcnet.runtime.interface import INPUTS, OUTPUTS, metadata_props
 
 TINY_VERSION = "test-tiny"
 RANDOM_VERSION = "test-random"
