@@ -99,3 +99,20 @@ def test_training_imports_only_the_yardstick_of_evaluation():
     from_training = {m for file, m, _ in IMPORTS if file.startswith("training/")}
     evaluation = {m for m in from_training if m.startswith("sdcnet.evaluation")}
     assert evaluation <= {"sdcnet.evaluation." + Path(path).stem for path in YARDSTICK}
+
+
+#: What each runtime folder may import of the packages above the core (none of them).
+ABOVE_THE_CORE = ("sdcnet.training", "sdcnet.evaluation", "sdcnet.export")
+
+
+@pytest.mark.parametrize(
+    ("folder", "forbidden"),
+    [
+        ("sdcnet/", (*ABOVE_THE_CORE, "sdcnet.service", "sdcnet.client")),
+        ("service/", (*ABOVE_THE_CORE, "sdcnet.client")),
+        ("client/", (*ABOVE_THE_CORE, "sdcnet.service")),
+    ],
+)
+def test_the_runtime_imports_only_the_core_and_itself(folder, forbidden):
+    found = [f"{file}: {m}" for file, m, _ in IMPORTS if file.startswith(folder)]
+    assert not [line for line in found if line.split(": ")[1].startswith(forbidden)]
