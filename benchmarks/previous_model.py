@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from sdcnet.dataset_format import SampleStore
 from sdcnet.pipeline import complete
-from sdcnet.runtime.onnx import OnnxModel
+from sdcnet.runtime import OnnxModel  # the previous version's module, not this checkout's package
 from sdcnet.service.inference import pixel_scale
 
 job = json.loads(sys.argv[1])
