@@ -18,7 +18,7 @@ from sdcnet.service.decode import Frame, InputLimits, frame_of
 from sdcnet.service.errors import ApiError
 from sdcnet.service.v2_json import DataArray, JsonDataError, data_values, split_data
 from sdcnet.service.v2_schemas import (
-    INPUTS,
+    PROTOCOL_INPUTS,
     AnyOutput,
     DepthOutput,
     InferenceRequest,
@@ -97,7 +97,7 @@ def _from_json(
 
 def _input_shape(inp: RequestInput) -> tuple[int, ...]:
     """The input's shape, once its datatype and rank are the ones its name takes."""
-    datatypes, expected = INPUTS[inp.name]
+    datatypes, expected = PROTOCOL_INPUTS[inp.name]
     if inp.datatype not in datatypes:
         raise _bad(
             f"input {inp.name} has datatype {inp.datatype}; it takes {' or '.join(datatypes)}",
@@ -115,8 +115,8 @@ def input_shapes(request: InferenceRequest, limits: InputLimits) -> dict[str, tu
     size (the returns it may have) before any value is read."""
     shapes: dict[str, tuple[int, ...]] = {}
     for inp in request.inputs:
-        if inp.name not in INPUTS:
-            raise _bad(f"unknown input {inp.name!r}: the inputs are {', '.join(INPUTS)}")
+        if inp.name not in PROTOCOL_INPUTS:
+            raise _bad(f"unknown input {inp.name!r}: the inputs are {', '.join(PROTOCOL_INPUTS)}")
         if inp.name in shapes:
             raise _bad(f"input {inp.name} is given twice")
         shape = shapes[inp.name] = _input_shape(inp)

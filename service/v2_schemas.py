@@ -12,13 +12,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX, GivenIntrinsics
 
-INPUTS = {
+PROTOCOL_INPUTS = {
     "gray": (("UINT8", "UINT16"), (-1, -1)),
     "sparse": (("FP32",), (-1, -1)),
     "returns": (("FP32",), (-1, 3)),
 }
 #: output name -> (datatype, shape) in the full-frame layout
-OUTPUTS = {
+PROTOCOL_OUTPUTS = {
     "depth": ("FP32", (-1, -1)),
     "mask": ("UINT8", (-1, -1)),
     "points": ("FP32", (-1, 3)),

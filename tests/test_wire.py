@@ -68,7 +68,7 @@ def expected(model_path) -> dict[str, np.ndarray]:
     return {"depth": result.depth, "mask": mask, "points": points, "sigma": result.sigma}
 
 
-OUTPUTS = ("depth", "mask", "points", "sigma")
+PROTOCOL_OUTPUT_NAMES = ("depth", "mask", "points", "sigma")
 
 
 def triton_infer(url: str, inputs: dict[str, np.ndarray], binary: bool, **parameters):
@@ -81,9 +81,11 @@ def triton_infer(url: str, inputs: dict[str, np.ndarray], binary: bool, **parame
             tensor = triton.InferInput(name, list(array.shape), datatypes[array.dtype])
             tensor.set_data_from_numpy(array, binary_data=binary)
             tensors.append(tensor)
-        outputs = [triton.InferRequestedOutput(name, binary_data=binary) for name in OUTPUTS]
+        outputs = [
+            triton.InferRequestedOutput(name, binary_data=binary) for name in PROTOCOL_OUTPUT_NAMES
+        ]
         result = client.infer("sdcnet", tensors, outputs=outputs, parameters=parameters or None)
-        return {name: result.as_numpy(name) for name in OUTPUTS}, result
+        return {name: result.as_numpy(name) for name in PROTOCOL_OUTPUT_NAMES}, result
     finally:
         client.close()
 
@@ -118,7 +120,7 @@ def test_tritonclient_reads_the_metadata_and_probes(url):
         assert "binary_tensor_data" in client.get_server_metadata()["extensions"]
         metadata = client.get_model_metadata("sdcnet")
         assert {t["name"] for t in metadata["inputs"]} == {"gray", "sparse", "returns"}
-        assert [t["name"] for t in metadata["outputs"]] == list(OUTPUTS)
+        assert [t["name"] for t in metadata["outputs"]] == list(PROTOCOL_OUTPUT_NAMES)
     finally:
         client.close()
 
@@ -184,7 +186,7 @@ def test_returns_and_the_dense_map_give_identical_answers_on_complete(url, expec
         body = response.json()
         arrays = {
             k: np.load(io.BytesIO(base64.b64decode(body[k]["npy_base64"])), allow_pickle=False)
-            for k in OUTPUTS
+            for k in PROTOCOL_OUTPUT_NAMES
         }
         assert_same(arrays, expected)
         assert body["returns"] == len(returns)

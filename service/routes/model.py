@@ -17,7 +17,7 @@ from sdcnet.service.schemas import (
     TargetInfo,
     TensorMetadata,
 )
-from sdcnet.service.v2_schemas import INPUTS, OUTPUTS
+from sdcnet.service.v2_schemas import PROTOCOL_INPUTS, PROTOCOL_OUTPUTS
 
 router = APIRouter(tags=["model"])
 
@@ -33,7 +33,8 @@ _DESCRIPTIONS = {
 
 
 def _tensors(specs: dict) -> list[TensorMetadata]:
-    """Metadata of the protocol's tensors (``sdcnet.service.v2_schemas.INPUTS`` / ``OUTPUTS``)."""
+    """Metadata of the protocol's tensors (``sdcnet.service.v2_schemas.PROTOCOL_INPUTS`` /
+    ``PROTOCOL_OUTPUTS``)."""
     return [
         TensorMetadata(
             name=name,
@@ -70,8 +71,8 @@ async def model_metadata(
         name=MODEL_NAME,
         versions=[info.version],
         platform=model.platform,
-        inputs=_tensors(INPUTS),
-        outputs=_tensors(OUTPUTS),
+        inputs=_tensors(PROTOCOL_INPUTS),
+        outputs=_tensors(PROTOCOL_OUTPUTS),
         version=info.version,
         provider=model.provider,
         threads=model.threads,
