@@ -30,17 +30,19 @@ import numpy as np
 from sdcnet.camera import GivenIntrinsics, Intrinsics
 from sdcnet.client import form, protocol
 from sdcnet.client.transport import TRANSPORT_ERRORS, ConnectTimeoutError, Reply, Transport
-from sdcnet.formats import FormatError, npy
-from sdcnet.formats.sparse import depth_from_png16, sparse_format
+from sdcnet.formats import FormatError, Reading
+from sdcnet.formats.sparse import FORMATS, described, sparse_format
 from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.pipeline import to_gray
-from sdcnet.returns import ReturnsError, check_returns, parse_returns_csv, returns_from_dense
+from sdcnet.returns import ReturnsError, check_returns, returns_from_dense
 from sdcnet.rigid import Pose, parse_pose
 
 DEFAULT_URL = os.environ.get("SDCNET_URL", "http://127.0.0.1:8000")
 
 
 Source = str | Path | bytes | np.ndarray
+#: Endings of the files of returns that hold a list only (named so in messages).
+LIST_ENDINGS = tuple(e for f in FORMATS if "map" not in f.carries for e in f.endings)
 
 
 def _given(intrinsics: Intrinsics | GivenIntrinsics | None) -> dict[str, float]:
@@ -161,31 +163,18 @@ def gray_array(gray: Source) -> np.ndarray:
 
 
 def _sparse_array(data: bytes, depth_scale: float | None, label: str) -> np.ndarray:
-    """A dense map or a returns list from file bytes (``sdcnet.formats.sparse``): .npy,
-    16-bit PNG (times ``depth_scale`` metres per unit) or CSV (``row,col,z_m``; its errors
-    start with ``label``)."""
-    kind = sparse_format(data)
+    """A dense map or a returns list from file bytes, read as the service reads them
+    (``sdcnet.formats.sparse``; a format of units times ``depth_scale`` metres per unit); its
+    errors start with ``label``."""
     try:
-        if kind == "npy":
-            return npy.read_floats(data, "sparse")
-        if kind == "png":
-            if depth_scale is None:
-                raise InputError("a 16-bit PNG sparse map needs depth_scale (metres per unit)")
-            units = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-            if units is None:
-                raise InputError("cannot decode the sparse PNG (truncated or corrupt)")
-            return depth_from_png16(units, depth_scale)
+        return sparse_format(data).parse(data, Reading(label, depth_scale=depth_scale))
     except FormatError as exc:
+        if exc.code == "unsupported_media_type":
+            raise InputError(
+                f"sparse must be a dense map, {described('map')}, or a list of returns, "
+                f"{described('list')}"
+            ) from None
         raise InputError(str(exc)) from None
-    try:
-        return parse_returns_csv(data, label)
-    except ReturnsError as exc:
-        if exc.code != "not_text":
-            raise
-        raise InputError(
-            "sparse must be a .npy file, a 16-bit PNG (with depth_scale) or a CSV of returns "
-            "(header row,col,z_m)"
-        ) from None
 
 
 def returns_list(
@@ -204,8 +193,8 @@ def returns_list(
             if isinstance(sparse, bytes):
                 data = sparse
             else:
-                csv = Path(sparse).suffix.lower() == ".csv"
-                data = read_file(sparse, "LIDAR returns" if csv else "sparse depth")
+                listed = str(sparse).lower().endswith(LIST_ENDINGS)
+                data = read_file(sparse, "LIDAR returns" if listed else "sparse depth")
             returns = _sparse_array(data, depth_scale, label)
         is_map = returns.ndim == 2 and returns.shape == shape
         if is_map and returns.dtype not in (np.float32, np.float64):

@@ -3,8 +3,9 @@
 A batch input is one of:
 
 - a folder of pairs: each gray image ``NAME.png`` (or .tif, .tiff, .jpg, .jpeg, .bmp) with
-  its LIDAR returns ``NAME.npy`` (map in metres), ``NAME.sparse.png`` (16-bit map, needs a
-  depth scale) or ``NAME.csv`` (list: ``row,col,z_m``);
+  its LIDAR returns: ``NAME`` and the ending of one of their formats
+  (``sdcnet.formats.sparse.ENDINGS``, the first found in that order: ``NAME.npy``,
+  ``NAME.sparse.png`` with a depth scale, ``NAME.csv``...);
 - a JSON-lines manifest, one pair per line: ``{"gray": PATH, "sparse": PATH}`` with optional
   ``"id"``, ``"depth_scale"``, ``"fx"``, ``"fy"``, ``"cx"``, ``"cy"``; paths are relative to
   the manifest's folder;
@@ -40,9 +41,11 @@ from sdcnet.client.api import (
 )
 from sdcnet.client.outputs import write_outputs
 from sdcnet.dataset_format import SampleStore, read_sample
+from sdcnet.formats.sparse import ENDINGS, FORMATS
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
-SPARSE_PNG_SUFFIX = ".sparse.png"
+#: Suffixes of the files of returns that hold units, for which a default depth scale is meant.
+SCALED_SUFFIXES = {Path(e).suffix for f in FORMATS if f.scaled for e in f.endings}
 
 
 @dataclass(frozen=True)
@@ -63,7 +66,7 @@ class Pair:
         the pair's own values in their place, value by value; a default depth scale only for
         a PNG map (the others hold metres)."""
         options = dict(defaults)
-        if self.sparse.suffix.lower() != ".png":
+        if self.sparse.suffix.lower() not in SCALED_SUFFIXES:
             options.pop("depth_scale", None)
         if self.depth_scale is not None:
             options["depth_scale"] = self.depth_scale
@@ -85,19 +88,12 @@ def _folder_pairs(folder: Path) -> list[Pair]:
     pairs = []
     for path in sorted(folder.iterdir()):
         name = path.name
-        if path.suffix.lower() not in IMAGE_SUFFIXES or name.endswith(SPARSE_PNG_SUFFIX):
+        if path.suffix.lower() not in IMAGE_SUFFIXES or name.endswith(ENDINGS):
             continue
         stem = path.with_suffix("")
-        found = [
-            candidate
-            for candidate in (
-                stem.with_suffix(".npy"),
-                Path(f"{stem}{SPARSE_PNG_SUFFIX}"),
-                stem.with_suffix(".csv"),
-            )
-            if candidate.exists()
-        ]
-        pairs.append(Pair(stem.name, path, found[0] if found else stem.with_suffix(".npy")))
+        candidates = [Path(f"{stem}{ending}") for ending in ENDINGS]
+        found = [candidate for candidate in candidates if candidate.exists()]
+        pairs.append(Pair(stem.name, path, (found or candidates)[0]))
     return pairs
 
 

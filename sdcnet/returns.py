@@ -17,7 +17,7 @@ On disk, a CSV file with the header ``row,col,z_m`` and one return per line, e.g
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -143,12 +143,14 @@ CSV_BLOCK_BYTES = 2**20
 
 
 def parse_returns_csv(
-    data: bytes | str, source: str = "returns CSV", max_returns: int | None = None
+    data: bytes | str,
+    source: str = "returns CSV",
+    check_shape: Callable[[tuple[int, ...]], None] | None = None,
 ) -> np.ndarray:
     """float32 (N, 3) returns of CSV text (UTF-8 bytes, or a string): the header
     ``row,col,z_m``, then one return per line (blank lines skipped). Checked as
-    ``check_returns`` without a frame. Its lines are counted before anything is parsed: more
-    than ``max_returns`` is a ``ReturnsError`` of code ``too_many_returns``; then it is parsed
+    ``check_returns`` without a frame. Its lines are counted before anything is parsed, and
+    ``check_shape((lines, 3))`` runs (it raises to refuse so many); then it is parsed
     ``CSV_BLOCK_BYTES`` at a time. Every error (``ReturnsError``; code ``not_text`` for bytes
     that are not UTF-8) starts with ``source`` and names the line or return at fault."""
     if isinstance(data, str):
@@ -161,12 +163,8 @@ def parse_returns_csv(
             f"{source}: the first line must be the header {','.join(CSV_HEADER)}",
         )
     lines = body.count(b"\n") + (1 if body and not body.endswith(b"\n") else 0)
-    if max_returns is not None and lines > max_returns:
-        raise ReturnsError(
-            "too_many_returns",
-            f"{source}: {lines} lines after the header, more than the {max_returns} returns "
-            "allowed",
-        )
+    if check_shape is not None:
+        check_shape((lines, 3))
     blocks, line = [np.empty((0, 3))], 2
     for block in _blocks(body):
         blocks.append(_parse_block(block, line, source))

@@ -5,9 +5,9 @@ Every check answers with an ``ApiError`` (a 4xx and a stable code) and nothing h
 on hostile bytes: sizes are read from headers and checked against the limits and the frame
 (``InputLimits``: the gray image's declared size bounds the sparse map and the returns)
 before anything is decoded or parsed, images are decoded by OpenCV (``cv2.imdecode``,
-IMREAD_UNCHANGED) only for the four formats accepted, ``.npy`` data are read in place
-(never unpickled) once their header says they hold plain floats, and a CSV of returns is
-parsed a block at a time once its lines are counted. Messages are the service's own: a
+IMREAD_UNCHANGED) only for the four formats accepted, and the files of returns are read by
+their format's parser (``sdcnet.formats.sparse``), which declares their shape to
+``Reading.check_shape`` before it reads their values. Messages are the service's own: a
 library's words (and its hints on how to lift a limit) stay out of them. The checks on arrays
 (``frame_of``) are the ones the Open Inference Protocol's tensors go through too
 (``sdcnet.service.v2_decode``).
@@ -23,11 +23,11 @@ import cv2
 import numpy as np
 
 from sdcnet.camera import GivenIntrinsics, Intrinsics
-from sdcnet.formats import FormatError, npy
+from sdcnet.formats import FormatError, InputFormat, Reading
 from sdcnet.formats.image_header import ImageHeader, check_decoding_work, read_header
-from sdcnet.formats.sparse import depth_from_png16, sparse_format
+from sdcnet.formats.sparse import FORMATS, described, sparse_format
 from sdcnet.pipeline import to_gray
-from sdcnet.returns import ReturnsError, dense_from_returns, parse_returns_csv
+from sdcnet.returns import ReturnsError, dense_from_returns
 from sdcnet.service.errors import ApiError, format_error
 from sdcnet.service.schemas import ResponseFormat
 
@@ -206,110 +206,88 @@ def decode_sparse(
     max_pixels: int,
     frame: tuple[int, int] | None = None,
 ) -> np.ndarray:
-    """``.npy`` (float32/float64 metres) or 16-bit PNG (times ``depth_scale`` metres per unit)
-    bytes -> float32 (H, W) metres, 0 = no return; values checked. ``frame``: the gray
-    image's (width, height), which the header's size must be, checked before decoding."""
+    """A file of a dense map (``sdcnet.formats.sparse``: float32/float64 metres, or units times
+    ``depth_scale`` metres per unit) -> float32 (H, W) metres, 0 = no return; values checked.
+    ``frame``: the gray image's (width, height), which the file's declared size must be,
+    checked before its values are read."""
     _not_empty("sparse", data)
-    kind = sparse_format(data)
-    if kind == "npy":
-        if depth_scale is not None:
-            raise ApiError(
-                422,
-                "invalid_request",
-                "depth_scale applies to 16-bit PNG sparse maps only; a .npy holds metres",
-            )
-        sparse = _npy(data, max_pixels, frame)
-    elif kind == "png":
-        if depth_scale is None:
-            raise ApiError(
-                422,
-                "invalid_request",
-                "a 16-bit PNG sparse map needs the depth_scale form field (metres per unit)",
-            )
-        sparse = _png_depth(data, depth_scale, max_pixels, frame)
-    else:
+    format_ = _format("sparse", data, "map")
+    if depth_scale is not None and not format_.scaled:
+        scaled = " or ".join(f.name for f in FORMATS if f.scaled)
         raise ApiError(
-            415,
-            "unsupported_media_type",
-            "sparse must be a .npy file (float32 or float64 metres) or a 16-bit PNG with "
-            "depth_scale",
+            422,
+            "invalid_request",
+            f"depth_scale applies to {scaled} sparse maps only; a {format_.name} holds metres",
         )
-    check_depths(sparse)
-    return sparse
 
-
-def _npy_floats(
-    field: str, data: bytes, check_shape: Callable[[tuple[int, ...]], None]
-) -> np.ndarray:
-    """``sdcnet.formats.npy.read_floats``, its errors answered in the service's shape."""
-    try:
-        return npy.read_floats(data, field, check_shape)
-    except FormatError as exc:
-        raise format_error(exc) from None
-
-
-def _npy(data: bytes, max_pixels: int, frame: tuple[int, int] | None) -> np.ndarray:
     def dense_map(shape: tuple) -> None:
         if len(shape) != 2:
             raise ApiError(
-                422, "wrong_shape", f"sparse .npy must be 2-D (height, width), got shape {shape}"
+                422, "wrong_shape", f"sparse must be 2-D (height, width), got shape {shape}"
             )
         _too_large("sparse", shape[1], shape[0], max_pixels)
         if frame is not None:
             _same_size(frame, (shape[1], shape[0]))
 
-    return _npy_floats("sparse", data, dense_map)
+    sparse = _parse(format_, data, Reading("sparse", dense_map, depth_scale), "map")
+    check_depths(sparse)
+    return sparse
 
 
-def _too_many_returns(most: int, frame: tuple[int, int]) -> ApiError:
-    width, height = frame
-    return ApiError(
-        413,
-        "too_large",
-        f"more than {most} returns, the most this service takes for a {width} x {height} "
-        "frame (at most one per pixel, and max_returns)",
-    )
+def _format(field: str, data: bytes, carried: str) -> InputFormat:
+    """The format of a file of returns, which must carry a ``"map"`` or a ``"list"``."""
+    format_ = sparse_format(data)
+    if carried not in format_.carries:
+        raise _unsupported(field, carried)
+    return format_
+
+
+def _unsupported(field: str, carried: str) -> ApiError:
+    return ApiError(415, "unsupported_media_type", f"{field} must be {described(carried)}")
+
+
+def _parse(format_: InputFormat, data: bytes, reading: Reading, carried: str) -> np.ndarray:
+    """``format_.parse`` of a file of a ``"map"`` or a ``"list"``, its errors answered in the
+    service's shape."""
+    try:
+        return format_.parse(data, reading)
+    except FormatError as exc:
+        if exc.code == "unsupported_media_type":
+            raise _unsupported(reading.field, carried) from None
+        raise format_error(exc) from None
+    except ReturnsError as exc:
+        raise ApiError(422, exc.code, str(exc)) from None
 
 
 def _returns_shape_check(most: int, frame: tuple[int, int]) -> Callable[[tuple[int, ...]], None]:
-    """The check every returns format makes of the list's shape once its header gives it, before
-    the values are read: (N, 3) (row, col, z_m) with N at most ``most`` for ``frame`` =
-    (width, height)."""
+    """The check of a list's shape once its file declares it, before the values are read:
+    (N, 3) (row, col, z_m) with N at most ``most`` for ``frame`` = (width, height)."""
 
     def check(shape: tuple[int, ...]) -> None:
         if len(shape) != 2 or shape[1] != 3:
             raise ApiError(
-                422,
-                "wrong_shape",
-                f"returns .npy must be (N, 3): row, col, z_m; got shape {shape}",
+                422, "wrong_shape", f"returns must be (N, 3): row, col, z_m; got shape {shape}"
             )
         if shape[0] > most:
-            raise _too_many_returns(most, frame)
+            width, height = frame
+            raise ApiError(
+                413,
+                "too_large",
+                f"more than {most} returns, the most this service takes for a {width} x "
+                f"{height} frame (at most one per pixel, and max_returns)",
+            )
 
     return check
 
 
 def decode_returns(data: bytes, most: int, frame: tuple[int, int]) -> np.ndarray:
-    """``.npy`` (N, 3) float32/float64 or CSV text (header ``row,col,z_m``) bytes -> the
-    returns as float32 (N, 3): row, column (pixel indices), Z metres; at most ``most`` of
-    them, counted before they are parsed (a ``frame`` = (width, height) holds that many).
-    Checked against the frame by ``sparse_from_returns``."""
+    """A file of a list of returns (``sdcnet.formats.sparse``) -> float32 (N, 3): row, column
+    (pixel indices), Z metres; at most ``most`` of them, counted before they are parsed (a
+    ``frame`` = (width, height) holds that many). Checked against the frame by
+    ``sparse_from_returns``."""
     _not_empty("returns", data)
-    if sparse_format(data) == "npy":
-        return _npy_floats("returns", data, _returns_shape_check(most, frame))
-    try:  # the CSV parser counts the lines itself, before it parses them (N rows of 3 columns)
-        return parse_returns_csv(data, "returns", most)
-    except ReturnsError as exc:
-        if exc.code == "too_many_returns":
-            raise _too_many_returns(most, frame) from None
-        if exc.code == "not_text":
-            raise ApiError(
-                415,
-                "unsupported_media_type",
-                "returns must be a .npy file of (N, 3) float32/float64 or a CSV text file "
-                "(UTF-8) with the header row,col,z_m",
-            ) from None
-        raise ApiError(422, exc.code, str(exc)) from None
+    format_ = _format("returns", data, "list")
+    return _parse(format_, data, Reading("returns", _returns_shape_check(most, frame)), "list")
 
 
 def sparse_from_returns(returns: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -319,19 +297,6 @@ def sparse_from_returns(returns: np.ndarray, shape: tuple[int, int]) -> np.ndarr
         return dense_from_returns(returns, shape)
     except ReturnsError as exc:
         raise ApiError(422, exc.code, str(exc)) from None
-
-
-def _png_depth(
-    data: bytes, depth_scale: float, max_pixels: int, frame: tuple[int, int] | None
-) -> np.ndarray:
-    header = _header("sparse", data, max_pixels)
-    if frame is not None:
-        _same_size(frame, (header.width, header.height))
-    image = _imdecode("sparse", data, header)
-    try:
-        return depth_from_png16(image, depth_scale)
-    except FormatError as exc:
-        raise format_error(exc) from None
 
 
 def check_depths(sparse: np.ndarray) -> None:

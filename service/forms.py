@@ -12,6 +12,7 @@ from fastapi.dependencies.models import Dependant
 from pydantic import WithJsonSchema
 
 from sdcnet.camera import MAX_FIELD_OF_VIEW_DEG, MAX_FOCAL_PX, GivenIntrinsics
+from sdcnet.formats.sparse import described
 from sdcnet.service.decode import CompletionRequest
 from sdcnet.service.errors import ApiError
 
@@ -97,14 +98,13 @@ GrayFile = Annotated[
     File(description="PNG, TIFF, JPEG or BMP; 8- or 16-bit; colour is converted to gray"),
 ]
 SparseFile = optional_file(
-    "the LIDAR returns as a dense map: .npy of float32/float64 metres (H x W, 0 = no "
-    "return), or a 16-bit PNG with depth_scale. Send this or returns"
+    f"the LIDAR returns as a dense map (H x W, 0 = no return): {described('map')}. Send "
+    "this or returns"
 )
 ReturnsFile = optional_file(
     "the LIDAR returns as a list, one per row: row, column (whole pixel indices) and Z "
-    "(metres > 0); a .npy of (N, 3) float32/float64 (exact, 12 bytes a return) or a CSV "
-    "text file with the header row,col,z_m. Where several fall on one pixel the nearest "
-    "wins. Send this or sparse"
+    f"(metres > 0); {described('list')}. Where several fall on one pixel the nearest wins. "
+    "Send this or sparse"
 )
 
 

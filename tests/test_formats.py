@@ -10,7 +10,8 @@ import pytest
 from sdcnet.client.api import InputError, returns_list
 from sdcnet.formats import FormatError, npy
 from sdcnet.formats.image_header import HeaderError, UnknownFormatError, read_header
-from sdcnet.formats.sparse import depth_from_png16, sparse_format
+from sdcnet.formats.png16 import depth_from_png16
+from sdcnet.formats.sparse import sparse_format
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import write_returns_csv
 from sdcnet.service.errors import format_error
@@ -18,9 +19,9 @@ from sdcnet.service.errors import format_error
 
 def test_the_first_bytes_tell_the_sparse_formats_apart():
     png = b"\x89PNG\r\n\x1a\n" + bytes(20)
-    assert sparse_format(npy_bytes(np.zeros((2, 2), np.float32))) == "npy"
-    assert sparse_format(png) == "png"
-    assert sparse_format(b"row,col,z_m\n1,2,3\n") == "csv"
+    assert sparse_format(npy_bytes(np.zeros((2, 2), np.float32))).name == ".npy"
+    assert sparse_format(png).name == "16-bit PNG"
+    assert sparse_format(b"row,col,z_m\n1,2,3\n").name == "CSV"
 
 
 def test_npy_floats_are_read_as_float32_in_either_order():
@@ -105,5 +106,5 @@ def test_the_client_reads_files_with_the_same_parsers(tmp_path):
     write_returns_csv(tmp_path / "r.csv", np.array([[1, 2, 3.5]], np.float32))
     listed = returns_list(tmp_path / "r.csv", None, (4, 4))
     np.testing.assert_array_equal(listed, [[1, 2, 3.5]])
-    with pytest.raises(InputError, match="a CSV of returns"):
+    with pytest.raises(InputError, match="or a CSV text file"):
         returns_list(b"row,col,z_m\n\xff\xfe\n", None, (4, 4))

@@ -1,6 +1,7 @@
 """``.npy`` bytes of floats read as the service and the client must read untrusted files: the
 header parsed first, its shape checked by the caller before any data is read, the data read
-in place and never unpickled."""
+in place and never unpickled. As a file of LIDAR returns (``FORMAT``): a dense map in metres,
+or an (N, 3) list."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sdcnet.formats import FormatError
+from sdcnet.formats import NPY_MAGIC, FormatError, InputFormat
 
 
 def read_floats(
@@ -55,3 +56,15 @@ def read_floats(
         )
     values = np.frombuffer(data, dtype, count, stream.tell())
     return values.reshape(shape, order="F" if fortran else "C").astype(np.float32, order="C")
+
+
+FORMAT = InputFormat(
+    name=".npy",
+    carries={
+        "map": "a .npy of float32/float64 metres",
+        "list": "a .npy of (N, 3) float32/float64 (exact, 12 bytes a return)",
+    },
+    recognise=lambda data: data.startswith(NPY_MAGIC),
+    parse=lambda data, reading: read_floats(data, reading.field, reading.check_shape),
+    endings=(".npy",),
+)

@@ -1,35 +1,25 @@
-"""The files that carry a frame's LIDAR returns: a ``.npy`` (a dense map in metres, or an
-(N, 3) list), a 16-bit PNG dense map (units times a depth scale in metres per unit) or a CSV
-list (``sdcnet.returns.parse_returns_csv``), told apart by their first bytes."""
+"""The files that carry a frame's LIDAR returns, one ``InputFormat`` each, told apart by their
+first bytes: the service (``sdcnet.service.decode``) and the client (``sdcnet.client.api``)
+read them, and the texts that list them (form fields, 415 answers, batch folders) are made
+from ``FORMATS``. A new format is a module of ``sdcnet.formats`` and a line here."""
 
 from __future__ import annotations
 
-from typing import Literal
+from sdcnet.formats import InputFormat, csv_returns, npy, png16
 
-import numpy as np
-
-from sdcnet.formats import NPY_MAGIC, PNG_SIGNATURE, FormatError
-
-SparseFormat = Literal["npy", "png", "csv"]
-
-
-def sparse_format(data: bytes) -> SparseFormat:
-    """ "npy" or "png" from the file's magic bytes, else "csv" (text, checked as it is
-    parsed)."""
-    if data.startswith(NPY_MAGIC):
-        return "npy"
-    if data.startswith(PNG_SIGNATURE):
-        return "png"
-    return "csv"
+#: In the order they are tried; CSV, which takes any bytes as text, last.
+FORMATS: tuple[InputFormat, ...] = (npy.FORMAT, png16.FORMAT, csv_returns.FORMAT)
+#: Every format's file endings, in that order.
+ENDINGS = tuple(ending for format_ in FORMATS for ending in format_.endings)
 
 
-def depth_from_png16(image: np.ndarray, depth_scale: float) -> np.ndarray:
-    """float32 (H, W) metres of a decoded 16-bit PNG's units times ``depth_scale`` (metres per
-    unit); ``FormatError`` ``wrong_dtype`` for an image that is not single-channel 16-bit."""
-    if image.dtype != np.uint16 or image.ndim != 2:
-        channels = 1 if image.ndim == 2 else image.shape[2]
-        raise FormatError(
-            f"a sparse PNG must be single-channel 16-bit, got {channels}-channel {image.dtype}",
-            "wrong_dtype",
-        )
-    return image.astype(np.float32) * np.float32(depth_scale)
+def sparse_format(data: bytes) -> InputFormat:
+    """The first format that recognises ``data``'s first bytes."""
+    return next(format_ for format_ in FORMATS if format_.recognise(data))
+
+
+def described(carried: str) -> str:
+    """The formats that carry a ``"map"`` or a ``"list"``, in words: "a .npy of ... or a CSV
+    ..."."""
+    lines = [format_.carries[carried] for format_ in FORMATS if carried in format_.carries]
+    return " or ".join([", ".join(lines[:-1]), lines[-1]] if len(lines) > 1 else lines)
