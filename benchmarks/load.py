@@ -54,7 +54,7 @@ from benchmarks.service_latency import ENDPOINTS, Run, frame_bodies, send
 from tests.support.background import BackgroundLoop
 from tests.support.serving import memory_kib, open_fds, temporary_service
 
-MIB = 1024  # KiB
+KIB_PER_MIB = 1024  # RSS is read from /proc in KiB
 
 
 @dataclass(frozen=True)
@@ -97,7 +97,7 @@ def verdict(run: Run, warm: Sample, end: Sample, limit_mib: float, fd_slack: int
     """Every check the run must pass, and whether it did."""
     statuses = run.statuses()
     unexpected = {k: v for k, v in statuses.items() if k not in ("200", "503")}
-    growth_mib = (end.rss_kib - warm.rss_kib) / MIB
+    growth_mib = (end.rss_kib - warm.rss_kib) / KIB_PER_MIB
     checks = {
         "no 5xx": not any(k.startswith("5") and k != "503" for k in statuses),
         "every answer 200 or 503": not unexpected,
@@ -111,7 +111,7 @@ def plot(samples: list[Sample], warm_t: float, title: str, path: Path) -> None:
     """RSS (MiB) and open file descriptors over time, the end of the warm-up marked."""
     t = [s.t_s for s in samples]
     fig, ax = plt.subplots(figsize=(8, 4))
-    ax.plot(t, [s.rss_kib / MIB for s in samples], label="RSS (MiB)", color="tab:blue")
+    ax.plot(t, [s.rss_kib / KIB_PER_MIB for s in samples], label="RSS (MiB)", color="tab:blue")
     ax.axvline(warm_t, color="gray", ls="--", lw=1, label="end of warm-up")
     ax.set(xlabel="seconds", ylabel="server RSS (MiB)", title=title)
     fds = ax.twinx()
@@ -125,7 +125,7 @@ def plot(samples: list[Sample], warm_t: float, title: str, path: Path) -> None:
 
 def slope_mib_per_min(samples: list[Sample], after_s: float) -> float:
     """Least-squares slope of the RSS after ``after_s``, MiB per minute."""
-    points = [(s.t_s, s.rss_kib / MIB) for s in samples if s.t_s >= after_s]
+    points = [(s.t_s, s.rss_kib / KIB_PER_MIB) for s in samples if s.t_s >= after_s]
     if len(points) < 3:
         return 0.0
     t, rss = np.array(points).T
@@ -196,10 +196,10 @@ def main(argv: list[str] | None = None) -> int:
         "p50_ms_200": _median_ms(run, 200),
         "p50_ms_503": _median_ms(run, 503),
         "rss_mib": {
-            "start": start.rss_kib / MIB,
-            "after_warmup": warm.rss_kib / MIB,
-            "end": end.rss_kib / MIB,
-            "peak": peak / MIB,
+            "start": start.rss_kib / KIB_PER_MIB,
+            "after_warmup": warm.rss_kib / KIB_PER_MIB,
+            "end": end.rss_kib / KIB_PER_MIB,
+            "peak": peak / KIB_PER_MIB,
         },
         "rss_slope_after_warmup_mib_per_min": slope_mib_per_min(sampler.samples, warm_t),
         "fds": {

@@ -27,6 +27,7 @@ import numpy as np
 import small_gicp
 
 from sdcnet.camera import Intrinsics
+from sdcnet.evaluation.cli import REAL_MESHES  # from the repository root, as sdc-eval real
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import back_project
@@ -36,7 +37,6 @@ from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.targets import load_target
 from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, make_sample
 
-REAL_MESHES = Path("../shared/real-meshes")  # as sdc-eval real: from the repository root
 SHIPPED = Path(__file__).resolve().parents[1] / "models" / "sdcnet.onnx"
 
 try:

@@ -42,11 +42,11 @@ import matplotlib.pyplot as plt
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
 from sdcnet.returns import returns_from_dense
+from sdcnet.service.inference import PHASES
 from tests.support.frames import generated_samples, multipart_body, sample_files, v2_body
 from tests.support.fuzzing import V2_INFER
 from tests.support.serving import temporary_service
 
-PHASES = ("decode", "queue", "inference", "encode")
 TARGET_MS = 100.0  # p50 of a 1024 x 1024 frame at concurrency 1: the LIDAR's 10 Hz
 CONCURRENCY = (1, 4, 16)
 FORMATS = ("json", "npz", "ply")

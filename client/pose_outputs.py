@@ -17,7 +17,7 @@ from sdcnet.camera import Intrinsics
 from sdcnet.client.api import PoseAnswer
 from sdcnet.visualize import draw_points, gray_bgr, labelled, montage, object_crop
 
-OUTPUT_FILES = ("pose.json", "preview.png")
+POSE_OUTPUT_FILES = ("pose.json", "preview.png")
 #: Alternatives of an ambiguous answer drawn in the preview, at most.
 PREVIEW_ALTERNATIVES = 2
 
@@ -104,7 +104,7 @@ def write_pose_outputs(
 ) -> list[Path]:
     """Write ``pose.json`` and ``preview.png`` into ``out`` (created); returns their paths."""
     out.mkdir(parents=True, exist_ok=True)
-    paths = [out / name for name in OUTPUT_FILES]
+    paths = [out / name for name in POSE_OUTPUT_FILES]
     paths[0].write_text(json.dumps(answer.answer, indent=1) + "\n")
     cv2.imwrite(str(paths[1]), pose_preview(gray, answer, points))
     return paths
