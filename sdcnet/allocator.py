@@ -9,9 +9,9 @@ Two costs of the C allocator's defaults show in the cost of every frame, not the
   arenas, flat and no slower);
 - a frame's full-resolution maps (16 MB each for 2048 x 2048 float32) are above malloc's
   default mmap threshold, so each is mapped for one request and unmapped after it, and the
-  next request faults every page in again; on a busy 2-core machine that made the slowest
-  frames of the pipeline benchmark 2-4 times its median. Served from the heaps and kept
-  there, they are reused from request to request.
+  next request faults every page in again, which made the pipeline's slow frames slower still
+  (docs/development.md, "Measurements"). Served from the heaps and kept there, they are
+  reused from request to request.
 
 Each setting gives way to glibc's own environment variable where it is set; nothing happens on
 other C libraries.

@@ -123,8 +123,8 @@ def anchor_to_returns(
     reach = np.minimum(count / centre, 1.0)  # 1 at a return, fading away from them
     correction = reach * spread(local) / total
     misfit = spread(np.abs(local)) / total
-    anchored = (depth + correction).astype(np.float32)
-    return Anchored(anchored, reach, misfit, noise_m, rows, cols, residual)
+    corrected = (depth + correction).astype(np.float32)
+    return Anchored(corrected, reach, misfit, noise_m, rows, cols, residual)
 
 
 def error_ratio(sigma: np.ndarray, anchored: Anchored) -> float:
