@@ -34,7 +34,7 @@ from tqdm import tqdm
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
 from sdcnet.evaluation.scoring import Method
-from sdcnet.pointcloud import back_project
+from sdcnet.pointcloud import POSE_SIGMA_QUANTILE, back_project, trusted_pixels
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, axis_angle, extrapolate, pose_errors
 from sdcnet.targets import Target, prepare_target
@@ -93,12 +93,15 @@ def truth_of(sample: Sample) -> Pose:
 
 
 def clouds(sample: Sample, methods: dict[str, Method]) -> Iterator[tuple[str, np.ndarray, float]]:
-    """(name, cloud, milliseconds to make it) per method, then the raw returns."""
+    """(name, cloud, milliseconds to make it) per method, then the raw returns. A method with a
+    sigma gives the cloud ``POST /pose`` registers: its points within the frame's
+    ``POSE_SIGMA_QUANTILE`` of sigma."""
     K = Intrinsics(**sample.meta["intrinsics"])
     for name, method in methods.items():
         start = time.perf_counter()
-        depth, mask, _ = method(sample)
-        cloud = back_project(depth, mask, K)
+        depth, mask, sigma = method(sample)
+        trusted, _ = trusted_pixels(mask & (depth > 0), sigma, None, POSE_SIGMA_QUANTILE)
+        cloud = back_project(depth, trusted, K)
         yield name, cloud, (time.perf_counter() - start) * 1e3
     yield RAW, back_project(sample.sparse, sample.sparse > 0, K), 0.0
 

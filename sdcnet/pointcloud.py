@@ -75,6 +75,29 @@ def back_project(
     return points
 
 
+#: Without ``max_sigma``, a cloud to register keeps the points whose sigma is within this
+#: quantile of the frame's: leaving the 10 % most uncertain out (flying pixels between
+#: surfaces, far from any return) cuts the depth's MAE of the rest by 30 % or more, and the
+#: model's sigma is calibrated for that (docs/service.md). ``POST /pose`` and ``sdc-eval
+#: pose`` both register such clouds.
+POSE_SIGMA_QUANTILE = 0.9
+
+
+def trusted_pixels(
+    valid: np.ndarray, sigma: np.ndarray | None, max_sigma: float | None, quantile: float | None
+) -> tuple[np.ndarray, float | None]:
+    """The ``valid`` pixels (H, W) whose sigma (metres) is within the limit, and the limit:
+    ``max_sigma`` when given, else, with a ``quantile`` (0..1), that quantile of the valid
+    pixels' sigma (the frame's own scale: 0.9 leaves the 10 % most uncertain out), else none
+    (every valid pixel; also without a sigma)."""
+    limit = max_sigma
+    if sigma is None:
+        return valid, None
+    if limit is None and quantile is not None and valid.any():
+        limit = float(np.quantile(sigma[valid], quantile))
+    return (valid if limit is None else valid & (sigma <= limit)), limit
+
+
 def point_pixels(points: np.ndarray, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
     """(rows, cols), int64, of the pixels ``back_project`` made (N, 3) camera-frame points
     (metres, z > 0) from: their projections, rounded. Exact for float32 points of frames up

@@ -22,7 +22,7 @@ import numpy as np
 from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.compact import mask_window
 from sdcnet.pipeline import Completion, Region, complete
-from sdcnet.pointcloud import back_project, statistical_outliers
+from sdcnet.pointcloud import back_project, statistical_outliers, trusted_pixels
 from sdcnet.runtime.interface import ModelLoadError, Runtime
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
@@ -190,17 +190,6 @@ def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Fram
         raise ApiError(422, "invalid_intrinsics", str(exc)) from None
 
 
-def sigma_limit(
-    sigma: np.ndarray, valid: np.ndarray, max_sigma: float | None, quantile: float | None
-) -> float | None:
-    """The sigma (metres) above which a point leaves the cloud: ``max_sigma`` when given,
-    else, with a ``quantile`` (0..1), that quantile of the ``valid`` pixels' sigma (the
-    frame's own scale: 0.9 leaves the 10 % most uncertain out), else none."""
-    if max_sigma is not None or quantile is None or not valid.any():
-        return max_sigma
-    return float(np.quantile(sigma[valid], quantile))
-
-
 def complete_frame(
     engine: Engine,
     frame: Frame,
@@ -209,7 +198,7 @@ def complete_frame(
     sigma_quantile: float | None = None,
 ) -> Completed:
     """Complete a validated frame (queue, inference) and back-project its points (timed as
-    ``cloud_phase``): the pixels whose sigma is within ``sigma_limit`` (the frame's
+    ``cloud_phase``): the pixels whose sigma is within the limit (``trusted_pixels``: the frame's
     ``max_sigma``, else its ``sigma_quantile`` when given), then the optional outlier removal
     on those. What every protocol answers from, and what ``POST /pose`` registers."""
     height, width = frame.gray.shape
@@ -218,8 +207,7 @@ def complete_frame(
     with timer(cloud_phase):
         depth, sigma = result.depth, result.sigma
         valid = result.mask & (depth > 0)
-        limit = sigma_limit(sigma, valid, frame.max_sigma, sigma_quantile)
-        trusted = valid if limit is None else valid & (sigma <= limit)
+        trusted, limit = trusted_pixels(valid, sigma, frame.max_sigma, sigma_quantile)
         kept = statistical_outliers(depth, trusted, K) if frame.outlier_removal else trusted
         points = back_project(depth, kept, K)
         trusted_count = int(np.count_nonzero(trusted))

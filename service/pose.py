@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from fastapi.responses import JSONResponse
 
-from sdcnet.pointcloud import back_project
+from sdcnet.pointcloud import POSE_SIGMA_QUANTILE, back_project
 from sdcnet.registration import PoseEstimate, UnusableCloudError, estimate_pose
 from sdcnet.rigid import Pose, parse_pose
 from sdcnet.service.camera import ServiceCamera, camera_frame
@@ -185,11 +185,6 @@ def pose_response(
 
 
 POSE_PHASES = ("decode", "queue", "inference", "cloud", "registration")
-#: Without ``max_sigma``, the points whose sigma is above this quantile of the frame's are
-#: left out of the registration: the 10 % most uncertain, those whose leaving out must cut the
-#: depth's MAE of the rest by 30 % or more: the model's sigma is calibrated for that
-#: (docs/service.md).
-POSE_SIGMA_QUANTILE = 0.9
 
 
 def answer_pose(

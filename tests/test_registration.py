@@ -161,6 +161,30 @@ def test_a_cloud_that_fits_nothing_is_unreliable(spacecraft, box):
         assert estimate.verdict == "unreliable" and "poor_fit" in estimate.reasons
 
 
+@pytest.mark.parametrize("init", [False, True], ids=["scratch", "tracked"])
+def test_a_cloud_the_returns_contradict_is_never_answered_reliable_elsewhere(spacecraft, init):
+    """The completed cloud says one pose, the LIDAR returns another (60 degrees and 1.5 m
+    away): a reliable answer must agree with the returns; one that follows the cloud must say
+    the returns lie off it. (Before the returns' misfit was a reason, the tracked case
+    answered "reliable" 49 degrees from the returns' pose.)"""
+    mesh, model = spacecraft
+    cloud_pose = Pose(axis_angle([0.3, -1.0, 0.4], 2.2), np.array([0.8, -0.5, 120.0]))
+    turn = axis_angle([1.0, 0.0, 0.2], np.radians(60))
+    truth = Pose(turn @ cloud_pose.R, cloud_pose.t + np.array([1.5, 0.0, 0.0]))
+    cloud = visible_samples(mesh, cloud_pose, seed=1)
+    returns = visible_samples(mesh, truth, seed=2)[::100]
+    start = near(cloud_pose, 3, 0.1, 0) if init else None
+    estimate = estimate_pose(model, cloud, returns, start)
+    rotation_deg, translation_m = pose_errors(estimate.pose, truth)
+    if estimate.verdict == "reliable":
+        assert rotation_deg < 2 and translation_m < 0.2
+    else:
+        assert "returns_misfit" in estimate.reasons or (rotation_deg < 2 and translation_m < 0.2)
+    follows_cloud = pose_errors(estimate.pose, cloud_pose)
+    if follows_cloud[0] < 2 and follows_cloud[1] < 0.2:
+        assert estimate.verdict == "unreliable" and "returns_misfit" in estimate.reasons
+
+
 def test_an_answer_that_leaves_its_init_says_so(spacecraft):
     mesh, model = spacecraft
     truth = Pose(axis_angle([1.0, 0.2, 0.1], 0.7), np.array([-1.0, 0.4, 90.0]))
@@ -190,6 +214,7 @@ GOOD = Evidence(
         ({"runner_up_consistency": None}, "reliable", None),
         ({"left_init": True}, "ambiguous", "left_init"),
         ({"left_init": True, "returns": 0}, "unreliable", "too_few_returns"),
+        ({"returns_misfit": True}, "unreliable", "returns_misfit"),
     ],
 )
 def test_the_verdict_follows_from_the_evidence(change, verdict, reason):

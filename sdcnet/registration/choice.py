@@ -6,7 +6,9 @@
    fits the returns clearly better. Those that fit about as well, far from it in rotation,
    make the answer ``ambiguous`` (a symmetric target) and are listed as alternatives.
 
-When tracking held, the tracked pose alone is refined on the returns; its symmetric twins are
+When tracking held, the tracked pose is refined on the returns, and so is the init itself (the
+cloud's refinement can slide a few decimetres along a large surface, the returns' cannot); the
+tracked pose stays unless the init's fits the returns clearly better. Its symmetric twins are
 scored, not refined.
 """
 
@@ -17,11 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 import small_gicp
 
-from sdcnet.registration.observed import Observed
+from sdcnet.registration.observed import Observed, consistency
 from sdcnet.registration.refine import Hypothesis, gicp
 from sdcnet.registration.search import mirrored
 from sdcnet.registration.target import TargetModel, surface_distances, surface_fit
-from sdcnet.rigid import rotation_angle_deg
+from sdcnet.rigid import Pose, rotation_angle_deg
 
 
 def _distinct(hypotheses: list[Hypothesis], separation_deg: float) -> list[Hypothesis]:
@@ -48,7 +50,7 @@ def _explains_as_well(
 
 
 def _refine_on_returns(
-    model: TargetModel, candidates: list[Hypothesis], returns: np.ndarray
+    model: TargetModel, candidates: list[Hypothesis], returns: np.ndarray, reach: float = 1.0
 ) -> list[Hypothesis]:
     """Each candidate refined by GICP on the LIDAR returns and scored by their mean distance
     to the target's surface, truncated (the returns' noise is a few centimetres, the
@@ -70,7 +72,9 @@ def _refine_on_returns(
             h.returns_error_m = float(gate / 3)
             continue
         source = small_gicp.PointCloud(thinned[near])
-        pose, _ = gicp(model, source, h.pose, (gate,), config.fine_iterations, kind="PLANE_ICP")
+        pose, _ = gicp(
+            model, source, h.pose, (reach * gate,), config.fine_iterations, kind="PLANE_ICP"
+        )
         h.pose, h.result = gicp(
             model,
             source,
@@ -83,6 +87,11 @@ def _refine_on_returns(
         distances = surface_distances(model, returns, h.pose)
         h.returns_error_m = float(np.mean(np.minimum(distances, gate / 3)))
     return sorted(candidates, key=lambda h: h.returns_error_m)
+
+
+#: The init's refinement on the returns starts with a gate this many times wider: a tracker's
+#: prediction can be a metre off (a missed frame), the cloud's refinement of it decimetres.
+INIT_REACH = 3.0
 
 
 @dataclass
@@ -128,29 +137,54 @@ def choose_searched(
         top = prior.consistency
         hypotheses = [prior, *(h for h in hypotheses if h is not prior)]
     margin = config.ambiguity_margin if returns is None else config.returns_margin
-    candidates = _distinct(
-        [h for h in hypotheses if h.consistency >= top - margin], config.alternative_deg
-    )[: config.max_candidates]
+    near_top = [h for h in hypotheses if h.consistency >= top - margin]
     if returns is None:
+        candidates = _distinct(near_top, config.alternative_deg)[: config.max_candidates]
         runner_up = _runner_up(model, candidates[0], hypotheses)
         return _Choice(candidates[0], candidates[1:], runner_up)
+    # Poses a few degrees apart are refined on the returns each (one may sit in the right
+    # basin, the other beside it), then grouped: the best of the incumbent's group stands
+    # for it.
+    candidates = _distinct(near_top, config.duplicate_deg)[: config.max_candidates]
     incumbent = candidates[0]
     ranked = _refine_on_returns(model, candidates, returns)
+    own = next(h for h in ranked if _same_basin(model, h, incumbent))
     ratio = config.returns_ambiguity_ratio
-    best = ranked[0] if ranked[0].returns_error_m * ratio < incumbent.returns_error_m else incumbent
+    best = ranked[0] if ranked[0].returns_error_m * ratio < own.returns_error_m else own
     alternatives = [
-        h for h in ranked if h is not best and h.returns_error_m <= ratio * best.returns_error_m
+        h
+        for h in _distinct(ranked, config.alternative_deg)
+        if not _same_basin(model, h, best) and h.returns_error_m <= ratio * best.returns_error_m
     ]
     runner_up = _runner_up(model, best, hypotheses)
     return _Choice(best, alternatives, runner_up, _returns_rmse(model, returns, best))
 
 
+def _same_basin(model: TargetModel, a: Hypothesis, b: Hypothesis) -> bool:
+    """Whether ``a`` and ``b`` are less than ``alternative_deg`` apart in rotation."""
+    return rotation_angle_deg(a.pose.R, b.pose.R) < model.config.alternative_deg
+
+
 def choose_tracked(
-    model: TargetModel, tracked: Hypothesis, observed: Observed, returns: np.ndarray | None
+    model: TargetModel,
+    tracked: Hypothesis,
+    init: Pose,
+    observed: Observed,
+    returns: np.ndarray | None,
 ) -> _Choice:
-    """The tracked pose, refined on the returns; its symmetric twins, scored as they are (no
+    """The tracked pose refined on the returns, or ``init`` refined on them when it fits them
+    clearly better (``returns_ambiguity_ratio``); its symmetric twins, scored as they are (no
     refinement: cheap), say whether the frame could tell them apart."""
-    best = _refine_on_returns(model, [tracked], returns)[0] if returns is not None else tracked
+    best = tracked
+    if returns is not None:
+        own = Hypothesis(init, tracked.consistency, tracked.result)
+        _refine_on_returns(model, [tracked], returns)
+        _refine_on_returns(model, [own], returns, reach=INIT_REACH)
+        ranked = sorted([tracked, own], key=lambda h: h.returns_error_m)
+        ratio = model.config.returns_ambiguity_ratio
+        best = ranked[0] if ranked[0].returns_error_m * ratio < tracked.returns_error_m else tracked
+        if best is own:
+            best.consistency = consistency(model, best.pose, observed)
     twins = _distinct([best, *mirrored(model, best, observed)], model.config.alternative_deg)
     alternatives = [h for h in twins[1:] if _explains_as_well(model, h, best, returns)]
     return _Choice(

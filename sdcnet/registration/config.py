@@ -31,6 +31,7 @@ class RegistrationConfig:
     ambiguity_margin: float = 0.04  # consistency within this of the best: an alternative
     returns_margin: float = 0.1  # ... with returns: within this, refined on them to choose
     alternative_deg: float = 10.0  # ... when at least this far from the best in rotation
+    duplicate_deg: float = 0.5  # hypotheses closer than this are one (refined on returns once)
     max_candidates: int = 6  # the answer and its alternatives, at most
     tracking_min_consistency: float = 0.5  # below it, tracking falls back to the search
     min_points: int = 12  # fewer observed points than this: no pose
@@ -41,6 +42,12 @@ class RegistrationConfig:
     reliable_min_consistency: float = 0.5  # poor_fit below it (unreliable)
     reliable_min_points: int = 20  # too_few_points: downsampled cloud points (unreliable)
     reliable_min_returns: int = 12  # too_few_returns: LIDAR returns refined on (unreliable)
+    # returns_misfit: the returns' mean distance to the target (truncated at a third of
+    # returns_max_distance_m) above this, metres. Right answers measured 0.008 median, 0.017 at
+    # most, the wrong ones marked reliable before 0.053-0.055 (68 frames, the paper's LIDAR:
+    # docs/pose/README.md); Gaussian range noise of sigma gives about 0.8 sigma, so a LIDAR
+    # noisier than ~3.5 cm needs a larger value
+    reliable_max_returns_error_m: float = 0.03
     reliable_min_lead: float = 0.06  # close_alternative: a pose >= alternative_deg away within this
     max_span_of_longest: float = 20.0  # a cloud wider than this (x L): no pose
     returns_max_distance_m: float = 0.5  # correspondence gate of the returns' refinement

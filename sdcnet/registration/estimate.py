@@ -3,7 +3,8 @@
 
 With an initial pose (tracking), steps 1-3 become one GICP refinement from it, then step 4
 on it alone (its symmetric twins scored, not refined); if the refinement leaves the target
-explaining the cloud poorly, the global search runs after all, and the init's refined pose
+explaining the cloud poorly, or the returns lie off the target at it, the global search runs
+after all, and the init's refined pose
 stays the answer unless another is more consistent by ``leave_init_margin`` and fits well
 (``reliable_min_consistency``), then unless another fits the returns clearly better: a
 tracker is not moved to a symmetric twin that fits as well, nor to a pose that fits poorly
@@ -19,10 +20,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sdcnet.registration.choice import choose_searched, choose_tracked
+from sdcnet.registration.config import RegistrationConfig
 from sdcnet.registration.covariance import covariance
 from sdcnet.registration.observed import observe
 from sdcnet.registration.refine import Hypothesis, refine_dense
-from sdcnet.registration.search import search
+from sdcnet.registration.search import search, seeded_by_returns
 from sdcnet.registration.target import TargetModel, surface_fit
 from sdcnet.registration.verdict import Evidence, judge
 from sdcnet.rigid import Pose, pose_errors
@@ -95,6 +97,13 @@ def _finite(points: np.ndarray) -> np.ndarray:
     return points[np.isfinite(points).all(axis=1)]
 
 
+def _returns_misfit(answer: Hypothesis, config: RegistrationConfig) -> bool:
+    """Whether the LIDAR returns lie further from the target at the ``answer`` than their
+    noise allows: their mean distance, truncated, above ``reliable_max_returns_error_m``
+    (never without returns: the distance is then NaN)."""
+    return answer.returns_error_m > config.reliable_max_returns_error_m
+
+
 def estimate_pose(
     model: TargetModel,
     cloud: np.ndarray,
@@ -141,11 +150,17 @@ def estimate_pose(
         if refined.consistency >= config.tracking_min_consistency:
             tracked = refined
         timings["tracking_ms"] = (time.perf_counter() - mark) * 1e3
+    choice = None
     if tracked is not None:
         mark = time.perf_counter()
-        choice, hypotheses = choose_tracked(model, tracked, observed, returns), 1
-    else:  # from scratch, or the tracked pose explains the cloud poorly: search (keeping it)
+        choice, hypotheses = choose_tracked(model, tracked, init, observed, returns), 1
+        if _returns_misfit(choice.best, config):  # the returns contradict the track
+            choice = None
+    if choice is None:  # from scratch, or the tracked pose explains the frame poorly: search
         searched = search(model, observed, timings)
+        if returns is not None:
+            searched += seeded_by_returns(model, observed, returns, timings)
+            searched.sort(key=lambda h: -h.consistency)
         if refined is not None:
             searched = sorted([refined, *searched], key=lambda h: -h.consistency)
         mark = time.perf_counter()
@@ -165,6 +180,7 @@ def estimate_pose(
         points=len(observed.points),
         returns=0 if returns is None else len(returns),
         left_init=left_init,
+        returns_misfit=_returns_misfit(best, config),
     )
     verdict, reasons = judge(evidence, config)
     timings["total_ms"] = (time.perf_counter() - started) * 1e3

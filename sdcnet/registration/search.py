@@ -15,6 +15,11 @@
 
 The target's self-symmetries (found once, ``TargetModel._symmetries``) turn the best into more
 candidates.
+
+When the LIDAR returns are given, the same search runs on them alone (``seeded_by_returns``)
+and its best poses join the candidates, scored on the cloud: the completed cloud's search can
+end in a basin that fits the cloud worse than the true pose does (a dish's rim, a craft cut by
+the image border), and the returns, few but centimetre-accurate, often find the right one.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ import time
 
 import numpy as np
 
-from sdcnet.registration.observed import Observed, consistency
+from sdcnet.registration.observed import Observed, consistency, observe
 from sdcnet.registration.refine import Hypothesis, refine_dense
 from sdcnet.registration.target import TargetModel, sight_basis
 from sdcnet.rigid import Pose, axis_angle, rotation_angle_deg
@@ -105,3 +110,20 @@ def search(model: TargetModel, observed: Observed, timings: dict) -> list[Hypoth
     hypotheses = sorted(finalists + refined[config.finalists :], key=lambda h: -h.consistency)
     timings["refine_ms"] = (time.perf_counter() - mark) * 1e3
     return hypotheses + mirrored(model, hypotheses[0], observed)
+
+
+def seeded_by_returns(
+    model: TargetModel, observed: Observed, returns: np.ndarray, timings: dict
+) -> list[Hypothesis]:
+    """The ``finalists`` most consistent poses of the search on the LIDAR ``returns`` (N, 3) alone
+    (its best's symmetric twins among them), each
+    scored on the ``observed`` cloud, so that step 4 weighs them beside the cloud's own (see
+    the module docstring); none when the returns fill too few voxels to search on."""
+    mark = time.perf_counter()
+    on_returns = observe(returns, model)
+    if on_returns.cloud.size() < model.config.min_points:
+        return []
+    found = sorted(search(model, on_returns, {}), key=lambda h: -h.consistency)
+    found = found[: model.config.finalists]  # the twins of the best included
+    timings["returns_search_ms"] = (time.perf_counter() - mark) * 1e3
+    return [Hypothesis(h.pose, consistency(model, h.pose, observed), h.result) for h in found]

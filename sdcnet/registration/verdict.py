@@ -14,6 +14,7 @@ REASONS: dict[str, tuple[bool, str]] = {
     "poor_fit": (True, "the target at this pose explains the cloud poorly (low consistency)"),
     "too_few_points": (True, "too few points of the cloud to register"),
     "too_few_returns": (True, "too few LIDAR returns to check the pose against"),
+    "returns_misfit": (True, "the LIDAR returns lie off the target at this pose"),
     "symmetric_twins": (False, "other poses (a symmetric target) fit the frame as well"),
     "close_alternative": (False, "another pose fits the frame almost as well"),
     "left_init": (False, "the answer left the basin of the tracker's init"),
@@ -30,6 +31,7 @@ class Evidence:
     points: int
     returns: int
     left_init: bool
+    returns_misfit: bool = False  # the returns' distance above ``reliable_max_returns_error_m``
 
 
 def judge(evidence: Evidence, config: RegistrationConfig = DEFAULT_CONFIG) -> tuple[str, list[str]]:
@@ -42,6 +44,7 @@ def judge(evidence: Evidence, config: RegistrationConfig = DEFAULT_CONFIG) -> tu
         "poor_fit": e.consistency < config.reliable_min_consistency,
         "too_few_points": e.points < config.reliable_min_points,
         "too_few_returns": e.returns < config.reliable_min_returns,
+        "returns_misfit": e.returns_misfit,
         "symmetric_twins": e.twins > 0,
         "close_alternative": e.twins == 0 and lead is not None and lead < config.reliable_min_lead,
         "left_init": e.left_init,
