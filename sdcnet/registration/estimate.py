@@ -158,13 +158,14 @@ def estimate_pose(
             choice = None
     if choice is None:  # from scratch, or the tracked pose explains the frame poorly: search
         searched = search(model, observed, timings)
-        if returns is not None:
-            searched += seeded_by_returns(model, observed, returns, timings)
-            searched.sort(key=lambda h: -h.consistency)
         if refined is not None:
             searched = sorted([refined, *searched], key=lambda h: -h.consistency)
         mark = time.perf_counter()
         choice = choose_searched(model, searched, returns, prior=refined)
+        if returns is not None and choice.best.returns_error_m > config.returns_doubt_m:
+            searched += seeded_by_returns(model, observed, returns, timings)
+            searched.sort(key=lambda h: -h.consistency)
+            choice = choose_searched(model, searched, returns, prior=refined)
         hypotheses = len(searched)
     timings["choice_ms"] = (time.perf_counter() - mark) * 1e3
     best = choice.best

@@ -16,8 +16,9 @@
 The target's self-symmetries (found once, ``TargetModel._symmetries``) turn the best into more
 candidates.
 
-When the LIDAR returns are given, the same search runs on them alone (``seeded_by_returns``)
-and its best poses join the candidates, scored on the cloud: the completed cloud's search can
+When the LIDAR returns lie off the target at the answer (``returns_doubt_m``), the same search
+runs on them alone (``seeded_by_returns``) and its best poses join the candidates, scored on
+the cloud: the completed cloud's search can
 end in a basin that fits the cloud worse than the true pose does (a dish's rim, a craft cut by
 the image border), and the returns, few but centimetre-accurate, often find the right one.
 """
