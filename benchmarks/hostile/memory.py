@@ -29,7 +29,7 @@ from tests.support.attacks import bright_frame, csv_returns, v2_json_zeros
 from tests.support.frames import multipart_body, png_bytes, synthetic_frame, v2_body
 from tests.support.serving import memory_kib
 
-DEPLOYMENT = Path(__file__).resolve().parent.parent / "deploy" / "deployment.yaml"
+DEPLOYMENT = Path(__file__).resolve().parents[2] / "deploy" / "deployment.yaml"
 
 
 def v2_json(count: int) -> Callable[[Context], Outcome]:
