@@ -193,3 +193,11 @@ def test_the_indexed_job_runs_one_shard_per_index_with_sdc_datas_own_syntax():
     volumes = {v["name"]: v["persistentVolumeClaim"]["claimName"] for v in pod["volumes"]}
     mounts = {m["name"]: m["mountPath"] for m in container["volumeMounts"]}
     assert volumes == {"data": claim} and args.out.is_relative_to(mounts["data"])
+
+
+def test_the_hostile_benchmark_reads_the_deployments_memory_limit():
+    """benchmarks.hostile (B5) holds four worst-case requests to this limit."""
+    from benchmarks.hostile.memory import deployment_limit_mib
+
+    (container,) = pod_of(one("Deployment"))["containers"]
+    assert deployment_limit_mib() == mebibytes(container["resources"]["limits"]["memory"])
