@@ -180,10 +180,8 @@ def choose_tracked(
         own = Hypothesis(init, tracked.consistency, tracked.result)
         _refine_on_returns(model, [tracked], returns)
         _refine_on_returns(model, [own], returns, reach=INIT_REACH)
-        ranked = sorted([tracked, own], key=lambda h: h.returns_error_m)
-        ratio = model.config.returns_ambiguity_ratio
-        best = ranked[0] if ranked[0].returns_error_m * ratio < tracked.returns_error_m else tracked
-        if best is own:
+        if own.returns_error_m * model.config.returns_ambiguity_ratio < tracked.returns_error_m:
+            best = own
             best.consistency = consistency(model, best.pose, observed)
     twins = _distinct([best, *mirrored(model, best, observed)], model.config.alternative_deg)
     alternatives = [h for h in twins[1:] if _explains_as_well(model, h, best, returns)]
