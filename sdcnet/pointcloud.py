@@ -90,9 +90,9 @@ def trusted_pixels(
     ``max_sigma`` when given, else, with a ``quantile`` (0..1), that quantile of the valid
     pixels' sigma (the frame's own scale: 0.9 leaves the 10 % most uncertain out), else none
     (every valid pixel; also without a sigma)."""
-    limit = max_sigma
     if sigma is None:
         return valid, None
+    limit = max_sigma
     if limit is None and quantile is not None and valid.any():
         limit = float(np.quantile(sigma[valid], quantile))
     return (valid if limit is None else valid & (sigma <= limit)), limit

@@ -177,7 +177,7 @@ def choose_tracked(
     refinement: cheap), say whether the frame could tell them apart."""
     best = tracked
     if returns is not None:
-        own = Hypothesis(init, tracked.consistency, tracked.result)
+        own = Hypothesis(init)
         _refine_on_returns(model, [tracked], returns)
         _refine_on_returns(model, [own], returns, reach=INIT_REACH)
         if own.returns_error_m * model.config.returns_ambiguity_ratio < tracked.returns_error_m:

@@ -4,8 +4,8 @@
 With an initial pose (tracking), steps 1-3 become one GICP refinement from it, then step 4
 on it alone (its symmetric twins scored, not refined); if the refinement leaves the target
 explaining the cloud poorly, or the returns lie off the target at it, the global search runs
-after all, and the init's refined pose
-stays the answer unless another is more consistent by ``leave_init_margin`` and fits well
+after all, and the init's refined pose stays the answer unless another is more consistent by
+``leave_init_margin`` and fits well
 (``reliable_min_consistency``), then unless another fits the returns clearly better: a
 tracker is not moved to a symmetric twin that fits as well, nor to a pose that fits poorly
 too. An answer outside the init's basin (``init_basin_deg``, ``init_basin_of_longest``) is

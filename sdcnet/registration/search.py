@@ -18,9 +18,9 @@ candidates.
 
 When the LIDAR returns lie off the target at the answer (``returns_doubt_m``), the same search
 runs on them alone (``seeded_by_returns``) and its best poses join the candidates, scored on
-the cloud: the completed cloud's search can
-end in a basin that fits the cloud worse than the true pose does (a dish's rim, a craft cut by
-the image border), and the returns, few but centimetre-accurate, often find the right one.
+the cloud: the completed cloud's search can end in a basin that fits the cloud worse than the
+true pose does (a dish's rim, a craft cut by the image border), and the returns, few but
+centimetre-accurate, often find the right one.
 """
 
 from __future__ import annotations
@@ -116,10 +116,10 @@ def search(model: TargetModel, observed: Observed, timings: dict) -> list[Hypoth
 def seeded_by_returns(
     model: TargetModel, observed: Observed, returns: np.ndarray, timings: dict
 ) -> list[Hypothesis]:
-    """The ``finalists`` most consistent poses of the search on the LIDAR ``returns`` (N, 3) alone
-    (its best's symmetric twins among them), each
-    scored on the ``observed`` cloud, so that step 4 weighs them beside the cloud's own (see
-    the module docstring); none when the returns fill too few voxels to search on."""
+    """The ``finalists`` most consistent poses of the search on the LIDAR ``returns`` (N, 3)
+    alone (its best's symmetric twins among them), each scored on the ``observed`` cloud, so
+    that step 4 weighs them beside the cloud's own (see the module docstring); none when the
+    returns fill too few voxels to search on."""
     mark = time.perf_counter()
     on_returns = observe(returns, model)
     if on_returns.cloud.size() < model.config.min_points:
