@@ -87,6 +87,10 @@ PREVIOUS ?= e6a386e
 RUN ?= runs/v3
 FIT := $(VENV)/bin/sdc-train fit --data data/mixed --preset $(PRESET) --iou-loss 1 --workers 2 \
 	--val-samples 40
+# the fourth model: FSNet twice as wide (--fsnet-growth 2), trained on views 0-11 of the same
+# world's models (the same frames as data/mixed's, fewer of them), its depth networks kept
+FIT12 := $(VENV)/bin/sdc-train fit --data data/mixed-v12 --preset $(PRESET) --iou-loss 1 \
+	--workers 2 --fsnet-growth 2 --epochs 0
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
@@ -98,6 +102,19 @@ model: $(STAMP)
 	$(VENV)/bin/sdc-train calibrate --checkpoint $(RUN)c/shipped.pt --data data/mixed --split val \
 		--edge-weight 0 --out $(RUN)c/calibrated.pt
 	$(VENV)/bin/sdc-train calibrate --checkpoint $(RUN)c/calibrated.pt --data data/mixed \
+		--split val --edge-weight 0.5 --out $(RUN)c/sigma.pt
+	$(VENV)/bin/sdc-data generate --out data/mixed-v12 --models 126 --views 12 --world mixed \
+		--seed 0 --only-splits train val
+	$(FIT12) --out runs/v4 --warm-start $(RUN)c/sigma.pt --fsnet-epochs 5 --lr 1e-3 --seed 3 \
+		--val-samples 40
+	$(FIT12) --out runs/v4b --init-weights runs/v4/best_stage1.pt --fsnet-epochs 14 --lr 5e-4 \
+		--seed 4
+	$(FIT12) --out runs/v4c --init-weights runs/v4b/best_stage1.pt --fsnet-epochs 6 --lr 3e-4 \
+		--iou-over tile --seed 5
+	$(VENV)/bin/sdc-train ship --checkpoint runs/v4c/best_stage1.pt --out runs/v4c/shipped.pt
+	$(VENV)/bin/sdc-train calibrate --checkpoint runs/v4c/shipped.pt --data data/mixed --split val \
+		--edge-weight 0 --out runs/v4c/calibrated.pt
+	$(VENV)/bin/sdc-train calibrate --checkpoint runs/v4c/calibrated.pt --data data/mixed \
 		--split val --edge-weight 0.5 --out models/sdcnet.pt
 	$(MAKE) reports
 
@@ -107,9 +124,14 @@ model: $(STAMP)
 ## with its parity check; refresh the galleries and the card
 .PHONY: reports
 PREVIOUS_ANSWERS := runs/previous/answers
+# the third shipped model (git $(THIRD)), the one this model's FSNet grew from: same pipeline
+THIRD ?= ab691bf
+THIRD_ONNX := runs/third/third-model.onnx
 MESHES ?= ../shared/real-meshes
 CONDITIONS := paper earth sun-moon wide-multibeam flash docking narrow-far any
-reports: $(STAMP)
+$(THIRD_ONNX):
+	mkdir -p $(dir $@) && git show $(THIRD):models/sdcnet.onnx > $@
+reports: $(STAMP) $(THIRD_ONNX)
 	$(VENV)/bin/sdc-data generate --out data/paper --models 126 --views 64 --size 1024 --seed 0 \
 		--only-splits test
 	$(VENV)/bin/sdc-train ship --checkpoint models/sdcnet.pt --out runs/ablation/plane-alone.pt \
@@ -117,7 +139,8 @@ reports: $(STAMP)
 	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/paper --split test \
 		--limit 288 --out $(PREVIOUS_ANSWERS)/paper
 	$(VENV)/bin/sdc-eval evaluate --checkpoint models/sdcnet.pt runs/ablation/plane-alone.pt \
-		--names sdcnet "its plane fit alone" --answers "previous model=$(PREVIOUS_ANSWERS)/paper" \
+		--names sdcnet "its plane fit alone" --onnx $(THIRD_ONNX) \
+		--answers "previous model=$(PREVIOUS_ANSWERS)/paper" \
 		--data data/paper --split test --floor --limit 288 --out models/eval_test.json \
 		--title "Synthetic test split, the paper's camera and LIDAR (18 unseen models, every fourth frame)"
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out models/sdcnet.onnx \
@@ -129,22 +152,23 @@ reports: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/real --models 0 --views 8 --seed 0 --split 0,0,0 \
 		--meshes $(MESHES)
 	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/real --out $(PREVIOUS_ANSWERS)/real
-	$(VENV)/bin/sdc-eval real --onnx models/sdcnet.onnx --floor --out docs/real \
+	$(VENV)/bin/sdc-eval real --onnx models/sdcnet.onnx $(THIRD_ONNX) --floor --out docs/real \
 		--answers "previous model=$(PREVIOUS_ANSWERS)/real"
 	for c in $(CONDITIONS); do $(VENV)/bin/sdc-data generate --out data/robustness/$$c --models 126 \
 		--views 2 --seed 0 --world $$c --meshes $(MESHES) --only-splits test real || exit 1; done
 	$(PY) -m benchmarks.previous_model --commit $(PREVIOUS) --data data/robustness \
 		--out $(PREVIOUS_ANSWERS)/robustness
-	$(VENV)/bin/sdc-eval robustness --onnx models/sdcnet.onnx --views 2 --out docs/robustness \
+	$(VENV)/bin/sdc-eval robustness --onnx models/sdcnet.onnx $(THIRD_ONNX) --views 2 \
+		--out docs/robustness \
 		--answers "previous model=$(PREVIOUS_ANSWERS)/robustness"
 	$(MAKE) card
 
 ## bench: regenerate the benchmark tables and plots in docs/benchmarks/ (needs data/paper and
 ## data/robustness from `make reports`; FP16/INT8 variants are made in runs/variants, not shipped)
 .PHONY: bench
-bench: $(STAMP)
+bench: $(STAMP) $(THIRD_ONNX)
 	$(PY) -m benchmarks.pipeline_latency --onnx models/sdcnet.onnx --data data/robustness \
-		--previous $(PREVIOUS)
+		--beside $(THIRD_ONNX) --previous $(PREVIOUS)
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out runs/variants/sdcnet.onnx \
 		--variants fp16 int8 --calibration-data data/mixed
 	$(PY) -m benchmarks.model_latency --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx

@@ -37,12 +37,15 @@ from sdcnet.runtime.onnx import OnnxModel
 BUDGET_MS = 100.0
 
 
-def time_frames(model: OnnxModel, store: SampleStore, repeats: int) -> list[float]:
+def time_frames(
+    models: dict[str, OnnxModel], store: SampleStore, repeats: int
+) -> dict[str, list[float]]:
     """Milliseconds of each frame of ``store`` (each one ``repeats`` times) through the
-    pipeline and the back-projection, after a warm-up."""
+    pipeline and the back-projection, per model, after a warm-up. The models take turns frame
+    by frame, so that a machine that slows down or speeds up weighs on each alike."""
     samples = [store.load(r) for r in store.records]
 
-    def run(sample) -> None:
+    def run(model: OnnxModel, sample) -> None:
         K = Intrinsics(**sample.meta["intrinsics"])
         info = model.info
         result = complete(
@@ -50,14 +53,16 @@ def time_frames(model: OnnxModel, store: SampleStore, repeats: int) -> list[floa
         )
         back_project(result.depth, result.mask, K)
 
-    for sample in samples[:2]:
-        run(sample)
-    times = []
+    for model in models.values():
+        for sample in samples[:2]:
+            run(model, sample)
+    times: dict[str, list[float]] = {name: [] for name in models}
     for _ in range(repeats):
         for sample in samples:
-            start = time.perf_counter()
-            run(sample)
-            times.append((time.perf_counter() - start) * 1e3)
+            for name, model in models.items():
+                start = time.perf_counter()
+                run(model, sample)
+                times[name].append((time.perf_counter() - start) * 1e3)
     return times
 
 
@@ -100,28 +105,49 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--onnx", required=True, type=Path)
     p.add_argument("--data", default="data/robustness", type=Path, help="a folder of datasets")
+    p.add_argument(
+        "--beside",
+        nargs="*",
+        default=[],
+        type=Path,
+        help="other ONNX models of this pipeline, timed in turn with --onnx frame by frame",
+    )
     p.add_argument("--previous", help="commit of the previous shipped model, run beside it")
     p.add_argument("--repeats", type=int, default=2, help="passes over the frames")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
 
     configure_malloc()  # as sdc-serve does
-    model = OnnxModel(args.onnx, provider="cpu", threads=args.threads, spin_wait=False)
+    models = {
+        name: OnnxModel(path, provider="cpu", threads=args.threads, spin_wait=False)
+        for name, path in [("this model", args.onnx), *((p.stem, p) for p in args.beside)]
+    }
+    model = models["this model"]
     conditions = sorted(d for d in args.data.iterdir() if (d / "manifest.jsonl").exists())
-    times = {c.name: time_frames(model, SampleStore(c), args.repeats) for c in conditions}
-    results = {"this model": {c: stats(t) for c, t in times.items()}}
-    results["this model"]["all"] = stats([t for ts in times.values() for t in ts])
+    by_condition = {c.name: time_frames(models, SampleStore(c), args.repeats) for c in conditions}
+    results = {}
+    for name in models:
+        times = {c: ts[name] for c, ts in by_condition.items()}
+        results[name] = {c: stats(t) for c, t in times.items()}
+        results[name]["all"] = stats([t for ts in times.values() for t in ts])
     if args.previous:
         previous = previous_times(args.previous, args.data, args.threads)
         results["previous model"] = {c: stats(t) for c, t in previous.items()}
         results["previous model"]["all"] = stats([t for ts in previous.values() for t in ts])
     rows = [
         row(name, condition, s)
-        for condition in [*times, "all"]
+        for condition in [*by_condition, "all"]
         for name, by_condition in results.items()
         if (s := by_condition.get(condition))
     ]
     print("\n".join(rows))
+    beside_note = (
+        " Beside it, taking turns frame by frame: "
+        + ", ".join(f"`{p}` (`{p.stem}`)" for p in args.beside)
+        + "."
+        if args.beside
+        else ""
+    )
     previous_note = (
         f" The previous model: the version at `{args.previous}`, its own pipeline (crops "
         "resampled to its focal length from each frame's true intrinsics), one pass."
@@ -133,8 +159,9 @@ Measured on {cpu_description()}, onnxruntime with {args.threads} intra-op thread
 sleep, as in the service), {args.repeats} passes over the frames of `{args.data}` (the
 robustness suite's conditions: `sdc-eval robustness`). Per frame: crop to the LIDAR-bounded
 region, resample to the working grid ({model.info.work_pixels} pixels), the network, paste back,
-back-project the cloud: the service's work between decode and encode.{previous_note}
+back-project the cloud: the service's work between decode and encode.{beside_note}{previous_note}
 Regenerate: `python -m benchmarks.pipeline_latency --onnx {args.onnx} --data {args.data}` \\
+`{" ".join(["--beside", *map(str, args.beside)]) if args.beside else ""}` \\
 `{"--previous " + args.previous if args.previous else ""}`.
 
 | condition | model | frames | median ms | p95 ms | max ms | p95 / median | {BUDGET_MS:.0f} ms |

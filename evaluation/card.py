@@ -52,6 +52,7 @@ def _recipe(configs: list[dict]) -> str:
     keys = (
         "variant",
         "fsnet_inputs",
+        "fsnet_growth",
         "fsnet_epochs",
         "epochs",
         "batch_size",
@@ -60,6 +61,7 @@ def _recipe(configs: list[dict]) -> str:
         "weight_decay",
         "gradient_loss",
         "iou_loss",
+        "iou_over",
         "sigma_loss",
         "samples_per_epoch",
         "train_samples",
@@ -71,6 +73,20 @@ def _recipe(configs: list[dict]) -> str:
     rule = "|---|" + "---|" * len(configs)
     rows = [f"| {k} | " + " | ".join(str(c.get(k)) for c in configs) + " |" for k in keys]
     return "\n".join([header, rule, *rows])
+
+
+def _data_lines(runs: list[dict]) -> list[str]:
+    """The datasets the runs trained on, each once, in the order first used."""
+    seen: dict[str, dict] = {}
+    for run in runs:
+        data = run.get("dataset", {})
+        seen.setdefault(data.get("command", "?"), data)
+    return [
+        f"- Data: `{command}` (seed {data.get('seed')}; {data.get('models')} models x "
+        f"{data.get('views')} views; models per split {data.get('split_models')}). Test "
+        "models are never seen in training."
+        for command, data in seen.items()
+    ]
 
 
 def model_card(
@@ -103,9 +119,7 @@ def model_card(
         "",
         "## Training",
         "",
-        f"- Data: `{data.get('command', '?')}` (seed {data.get('seed')}; "
-        f"{data.get('models')} models x {data.get('views')} views; models per split "
-        f"{data.get('split_models')}). Test models are never seen in training.",
+        *_data_lines(runs),
         f"- Training: {len(runs)} run(s), each starting from the weights the one before kept "
         f"(`--init-weights`, its FSNet with `--init-segmentation`, or every weight that fits "
         f"a new design with `--warm-start`), {minutes:.0f} min in all:",

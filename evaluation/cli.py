@@ -91,7 +91,7 @@ def add_method_flags(p: argparse.ArgumentParser, checkpoint_help: str, onnx_help
     """The methods to compare: checkpoints, the ONNX model, stored answers, the fill."""
     p.add_argument("--checkpoint", nargs="*", default=[], help=checkpoint_help)
     p.add_argument("--names", nargs="*", help="table labels of the checkpoints, in order")
-    p.add_argument("--onnx", help=onnx_help)
+    p.add_argument("--onnx", nargs="*", default=[], help=onnx_help)
     p.add_argument(
         "--answers",
         nargs="*",
@@ -109,7 +109,7 @@ def parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("evaluate", help="Table-3-style metrics on a split")
     add_method_flags(
-        e, "one or more checkpoints", "also evaluate an exported ONNX model (onnxruntime)"
+        e, "one or more checkpoints", "also evaluate exported ONNX models (onnxruntime)"
     )
     e.add_argument(
         "--segmentation-only",
@@ -130,7 +130,7 @@ def parser() -> argparse.ArgumentParser:
     e.set_defaults(func=cmd_evaluate)
 
     r = sub.add_parser("real", help="real spacecraft meshes: per-spacecraft table and gallery")
-    add_method_flags(r, "first one draws the gallery", "also the exported ONNX model")
+    add_method_flags(r, "first one draws the gallery", "also exported ONNX models")
     r.add_argument("--floor", action="store_true", help=fill_help)
     r.add_argument("--meshes", default=REAL_MESHES, help="mesh folder with manifest.json")
     r.add_argument("--data", default="data/real", help="where the rendered frames go (made once)")
@@ -146,7 +146,7 @@ def parser() -> argparse.ArgumentParser:
         "spacecraft never trained on: table, latency and galleries",
     )
     add_method_flags(
-        o, "first one draws the galleries", "also the exported ONNX model (onnxruntime, as served)"
+        o, "first one draws the galleries", "also exported ONNX models (onnxruntime, as served)"
     )
     o.add_argument("--conditions", nargs="*", default=list(ROBUSTNESS), choices=list(ROBUSTNESS))
     o.add_argument("--meshes", default=REAL_MESHES, help="real meshes (manifest.json); '' none")

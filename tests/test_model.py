@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from sdcnet.dataset_format import SampleStore
-from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
+from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint, transplant_weights
 from sdcnet.training.dataset import TileDataset
 from sdcnet.training.losses import (
     depth_gradient_loss,
@@ -190,6 +190,16 @@ def test_soft_iou_loss_is_one_minus_the_iou_of_a_hard_mask():
     assert soft_iou_loss((gt > 0).float(), gt).item() == pytest.approx(0.0)
 
 
+def test_the_soft_iou_per_tile_weighs_a_small_spacecraft_like_a_large_one():
+    gt = torch.zeros(3, 1, 8, 8)
+    gt[0, :, :6, :] = 50.0  # 48 pixels, all found
+    gt[1, :, :1, :2] = 50.0  # 2 pixels, one found: IOU 1 / 2
+    prob = (gt > 0).float()
+    prob[1, :, 0, 1] = 0.0  # tile 2 holds no spacecraft: left out of the mean
+    assert soft_iou_loss(prob, gt, per_tile=True).item() == pytest.approx((0 + 0.5) / 2)
+    assert soft_iou_loss(prob, gt).item() == pytest.approx(1 - 49 / 50)
+
+
 @pytest.mark.parametrize("block", [2, 4])
 def test_space_to_depth_is_pixel_unshuffle_exactly(block):
     x = torch.randn(3, 1, 16, 24) * 100
@@ -233,6 +243,39 @@ def test_an_untrained_refiner_leaves_fsnets_mask_as_it_was():
         )
     trainable = {id(p) for p in refined.segmentation_parameters()}
     assert all(id(p) in trainable for p in refined.refiner.parameters())
+
+
+def test_a_widened_fsnet_starts_as_the_narrow_one_and_its_new_channels_learn():
+    """``--warm-start`` from a model with a narrower FSNet (``fsnet_growth``): the wide network
+    first computes the same mask, and one step moves the weights of its new channels."""
+    torch.manual_seed(0)
+    narrow = build_model("sdcnet")
+    for module in narrow.fsnet.modules():  # trained-like BN statistics and a live head
+        if isinstance(module, torch.nn.BatchNorm2d):
+            torch.nn.init.uniform_(module.running_mean, -0.5, 0.5)
+            torch.nn.init.uniform_(module.running_var, 0.5, 2.0)
+            torch.nn.init.uniform_(module.bias, -0.2, 0.2)
+    torch.nn.init.normal_(narrow.fsnet.head.weight, std=0.5)
+    wide = build_model("sdcnet", fsnet_growth=2)
+    report = transplant_weights(wide, narrow.state_dict())
+    assert not report["left"] and "fsnet.dec2.0.weight" in report["partial"]
+    assert sum(p.numel() for p in wide.fsnet.parameters()) > 3.5 * sum(
+        p.numel() for p in narrow.fsnet.parameters()
+    )
+    gray, sparse = torch.rand(1, 1, 128, 128), lidar_like(1, 128, 128)
+    narrow.eval(), wide.eval()
+    with torch.no_grad():
+        torch.testing.assert_close(
+            narrow.segment(gray, sparse, FOCAL), wide.segment(gray, sparse, FOCAL)
+        )
+    wide.train()
+    old_rows = narrow.fsnet.dec1[0].out_channels
+    new_inputs = wide.fsnet.head.weight[:, old_rows:].detach().clone()
+    assert (new_inputs == 0).all()
+    optimiser = torch.optim.SGD(wide.segmentation_parameters(), lr=0.1)
+    wide.segment(gray, sparse, FOCAL).mean().backward()
+    optimiser.step()
+    assert (wide.fsnet.head.weight[:, old_rows:] != 0).any()
 
 
 def _trained_like(seed: int = 0) -> SDCNet:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import torch
 
+from sdcnet.training.model.fsnet import WIDTHS, FSNet
 from sdcnet.training.model.sdcnet import ModelConfig, SDCNet
 
 
@@ -96,7 +97,31 @@ def transplant_weights(model: SDCNet, weights: dict) -> dict[str, list[str]]:
             report["partial"].append(name)
         else:
             report["left"].append(name)
+    _widen_fsnet(model, weights, report)
     return report
+
+
+def _widen_fsnet(model: SDCNet, weights: dict, report: dict[str, list[str]]) -> None:
+    """A narrower FSNet in ``weights`` (smaller ``fsnet_growth``, same inputs and outputs)
+    widened into ``model``'s (``FSNet.widen_from``); its tensors move from "left" to
+    "partial" in ``report``."""
+    first = weights.get("fsnet.enc1.0.weight")
+    head = weights.get("fsnet.head.weight")
+    own = model.fsnet
+    if own is None or first is None or head is None:
+        return
+    if first.shape[0] >= own.enc1[0].out_channels or first.shape[1] != own.enc1[0].in_channels:
+        return
+    narrow = FSNet(
+        in_channels=first.shape[1], out_channels=head.shape[0], growth=first.shape[0] // WIDTHS[0]
+    )
+    narrow.load_state_dict(
+        {k[len("fsnet.") :]: v for k, v in weights.items() if k.startswith("fsnet.")}
+    )
+    own.widen_from(narrow)
+    widened = [n for n in report["left"] if n.startswith("fsnet.")]
+    report["left"] = [n for n in report["left"] if not n.startswith("fsnet.")]
+    report["partial"] += widened
 
 
 def load_checkpoint(

@@ -149,7 +149,9 @@ class Trainer:
         self.val_records = self.store.split("val") or train[:2]
         if config.val_samples:
             self.val_records = evenly_spread(self.val_records, config.val_samples)
-        self.model = build_model(config.variant, fsnet_inputs=config.fsnet_inputs).to(self.device)
+        self.model = build_model(
+            config.variant, fsnet_inputs=config.fsnet_inputs, fsnet_growth=config.fsnet_growth
+        ).to(self.device)
         self.train_set = TileDataset(
             self.store,
             train,
@@ -262,7 +264,8 @@ class Trainer:
             prob = net(*inputs)
             loss = segmentation_loss(prob, batch["depth"])
             if self.config.iou_loss:
-                loss = loss + self.config.iou_loss * soft_iou_loss(prob, batch["depth"])
+                per_tile = self.config.iou_over == "tile"
+                loss = loss + self.config.iou_loss * soft_iou_loss(prob, batch["depth"], per_tile)
             return loss
         depth, prob, sigma = net(*inputs)
         if self.model.fsnet is None:

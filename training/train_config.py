@@ -28,6 +28,9 @@ class TrainConfig:
     fsnet_inputs: str = setting(
         "both", "what FSNet sees: gray, sparse or both", choices=("both", "gray", "sparse")
     )
+    fsnet_growth: int = setting(
+        1, "FSNet's widths x this (1: the paper's ~5k parameters; 2: four times as many)"
+    )
     fsnet_epochs: int = setting(
         30, "epochs of stage 1 (FSNet alone); 0 skips it, from --init-weights"
     )
@@ -40,6 +43,12 @@ class TrainConfig:
         1.0, "weight of the depth-gradient L1 beside eq. 7's L1 (stage 2)"
     )
     iou_loss: float = setting(0.0, "weight of a soft-IOU term beside eq. 6's BCE (stage 1)")
+    iou_over: str = setting(
+        "batch",
+        "the soft-IOU term over the whole batch, or per tile and averaged (each spacecraft "
+        "weighs alike, as in the IOU metric, a mean over frames)",
+        choices=("batch", "tile"),
+    )
     sigma_loss: float = setting(
         1.0, "weight of the uncertainty's Laplace NLL (stage 2; depth detached)"
     )

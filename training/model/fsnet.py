@@ -15,20 +15,62 @@ from torch import nn
 
 from sdcnet.training.model.blocks import ConvBNReLU, upsample_to
 
+#: Channels of enc1, enc2, enc3 (= mid1), mid2 (= dec2) and dec1 at ``growth`` 1: the paper's
+#: ~5k parameters.
+WIDTHS = (6, 8, 12, 8, 6)
+
 
 class FSNet(nn.Module):
-    """(B, Cin, h, w) -> logits (B, Cout, h, w); h, w multiples of 4."""
+    """(B, Cin, h, w) -> logits (B, Cout, h, w); h, w multiples of 4. ``growth`` multiplies
+    every width (parameters grow as its square)."""
 
-    def __init__(self, *, in_channels: int, out_channels: int = 1):
+    def __init__(self, *, in_channels: int, out_channels: int = 1, growth: int = 1):
         super().__init__()
-        self.enc1 = ConvBNReLU(in_channels, 6)
-        self.enc2 = ConvBNReLU(6, 8, stride=2)
-        self.enc3 = ConvBNReLU(8, 12, stride=2)
-        self.mid1 = ConvBNReLU(12, 12, dilation=2)
-        self.mid2 = ConvBNReLU(12, 8, dilation=4)
-        self.dec2 = ConvBNReLU(8 + 8, 8)
-        self.dec1 = ConvBNReLU(8 + 6, 6)
-        self.head = nn.Conv2d(6, out_channels, 1)
+        c1, c2, c3, c4, c5 = (growth * c for c in WIDTHS)
+        self.enc1 = ConvBNReLU(in_channels, c1)
+        self.enc2 = ConvBNReLU(c1, c2, stride=2)
+        self.enc3 = ConvBNReLU(c2, c3, stride=2)
+        self.mid1 = ConvBNReLU(c3, c3, dilation=2)
+        self.mid2 = ConvBNReLU(c3, c4, dilation=4)
+        self.dec2 = ConvBNReLU(c4 + c2, c4)
+        self.dec1 = ConvBNReLU(c4 + c1, c5)
+        self.head = nn.Conv2d(c5, out_channels, 1)
+        # each layer's input channels as the parts concatenated into it, in order
+        self.input_parts = {
+            "enc1": (in_channels,),
+            "enc2": (c1,),
+            "enc3": (c2,),
+            "mid1": (c3,),
+            "mid2": (c3,),
+            "dec2": (c4, c2),
+            "dec1": (c4, c1),
+            "head": (c5,),
+        }
+
+    @torch.no_grad()
+    def widen_from(self, narrow: FSNet) -> None:
+        """Start from the weights of a narrower FSNet (smaller ``growth``, same inputs and
+        outputs). Each layer's old channels go into the first of its new ones, part by part of
+        a concatenated input; the old outputs' weights on the new inputs start at zero and
+        the new outputs keep their random start. The wide network first computes exactly what
+        the narrow one did, and its new channels carry activations, so they learn."""
+        for name, parts in self.input_parts.items():
+            layer, old = getattr(self, name), getattr(narrow, name)
+            conv, old_conv = (layer, old) if name == "head" else (layer[0], old[0])
+            rows = old_conv.out_channels
+            conv.weight[:rows] = 0.0
+            start = old_start = 0
+            for part, old_part in zip(parts, narrow.input_parts[name], strict=True):
+                conv.weight[:rows, start : start + old_part] = old_conv.weight[
+                    :, old_start : old_start + old_part
+                ]
+                start, old_start = start + part, old_start + old_part
+            if conv.bias is not None:
+                conv.bias[:rows] = old_conv.bias
+            if name != "head":
+                bn, old_bn = layer[1], old[1]
+                for key in ("weight", "bias", "running_mean", "running_var"):
+                    getattr(bn, key)[:rows] = getattr(old_bn, key)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         e1 = self.enc1(x)
