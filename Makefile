@@ -201,6 +201,26 @@ ablation: $(STAMP)
 		--title "Table 4 ablation, test split: FSNet's inputs (8 epochs of stage 1 each, mask metrics only)"
 	$(MAKE) card
 
+## ablation-fsnet-growth: what FSNet's width bought apart from its training (needs runs/v4c and
+## data/mixed-v12 from `make model`, runs/third/third-model.pt): the 5.9k FSNet trained by the
+## same three runs, then both masks per condition of the robustness suite (the card's notes)
+.PHONY: ablation-fsnet-growth
+NARROW := $(VENV)/bin/sdc-train fit --data data/mixed-v12 --preset $(PRESET) --iou-loss 1 \
+	--workers 2 --fsnet-growth 1 --epochs 0
+ablation-fsnet-growth: $(STAMP)
+	git show $(THIRD):models/sdcnet.pt > runs/third/third-model.pt
+	$(NARROW) --out runs/ablation-fsnet-narrow --warm-start runs/third/third-model.pt \
+		--fsnet-epochs 5 --lr 1e-3 --seed 3 --val-samples 40
+	$(NARROW) --out runs/ablation-fsnet-narrow-b --init-weights runs/ablation-fsnet-narrow/best_stage1.pt \
+		--fsnet-epochs 14 --lr 5e-4 --seed 4
+	$(NARROW) --out runs/ablation-fsnet-narrow-c \
+		--init-weights runs/ablation-fsnet-narrow-b/best_stage1.pt --fsnet-epochs 6 --lr 3e-4 \
+		--iou-over tile --seed 5
+	$(VENV)/bin/sdc-eval robustness --checkpoint runs/v4c/best_stage1.pt \
+		runs/ablation-fsnet-narrow-c/best_stage1.pt runs/third/third-model.pt \
+		--names "wide, 25 epochs" "narrow, 25 epochs" "third model" --views 2 --gallery 0 \
+		--out runs/ablation-fsnet-growth
+
 ## card: rewrite models/MODEL_CARD.md from the checkpoint and the evaluation reports
 .PHONY: card
 card: $(STAMP)
