@@ -15,10 +15,10 @@ import pytest
 import torch
 
 from sdcnet.evaluation.cli import main as eval_main
-from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint
+from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint, transplant_weights
 from sdcnet.training.cli import main as train_main
 from sdcnet.training.cli import parser as train_parser
-from sdcnet.training.model.sdcnet import VARIANTS, SDCNet
+from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
 from sdcnet.training.train import TrainConfig, config_from_preset
 from sdcnet.training.uncertainty import with_sigma
 
@@ -171,6 +171,26 @@ def test_init_weights_of_another_variant_is_refused(run, tiny_dataset, tmp_path,
     fit = ["fit", "--data", str(tiny_dataset), "--out", str(tmp_path / "r"), "--preset", "smoke"]
     assert train_main([*fit, "--variant", "baseline", "--init-weights", str(run / "best.pt")]) == 2
     assert "another architecture" in capsys.readouterr().err
+
+
+def test_a_calibrated_wide_model_fine_tunes_with_its_own_flags_and_calibration(
+    run, tiny_dataset, tmp_path, capsys
+):
+    """The shipped model is calibrated (sigma's coefficients) and has a wide FSNet: fine-tuning
+    it needs --fsnet-growth (a clear refusal without) and keeps its calibration."""
+    source, _ = load_checkpoint(run / "best.pt")
+    wide = build_model("sdcnet", fsnet_growth=2)
+    transplant_weights(wide, source.state_dict())
+    shipped = with_sigma(wide, 0.4, 0.3)
+    save_checkpoint(tmp_path / "shipped.pt", shipped)
+    fit = ["fit", "--data", str(tiny_dataset), "--preset", "smoke", "--epochs", "0"]
+    fit += ["--init-weights", str(tmp_path / "shipped.pt")]
+    assert train_main([*fit, "--out", str(tmp_path / "narrow")]) == 2
+    assert "fsnet_growth 2 (this run: 1)" in capsys.readouterr().err
+    assert train_main([*fit, "--out", str(tmp_path / "ft"), "--fsnet-growth", "2"]) == 0
+    tuned, _ = load_checkpoint(tmp_path / "ft" / "best_stage1.pt")
+    assert tuned.config.fsnet_growth == 2
+    assert (tuned.config.sigma_per_scale, tuned.config.sigma_edge_weight) == (0.4, 0.3)
 
 
 def test_segmentation_only_evaluation_reports_the_mask_alone(run, tiny_dataset, tmp_path, capsys):

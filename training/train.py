@@ -13,7 +13,7 @@ import json
 import os
 import platform
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -352,11 +352,16 @@ class Trainer:
         """The checkpoint fine-tuning starts from (same variant, else a clear error), read once
         for its weights and its provenance."""
         state = read_checkpoint(self.config.init_weights, self.device)
-        theirs = state["model_config"]
-        if ModelConfig.from_dict(theirs) != self.model.config:
+        differences = self.model.config.architecture_differences(
+            ModelConfig.from_dict(state["model_config"])
+        )
+        if differences:
+            listed = ", ".join(
+                f"{k} {theirs} (this run: {ours})" for k, (ours, theirs) in differences.items()
+            )
             raise ValueError(
-                f"{self.config.init_weights} holds another architecture "
-                f"({theirs}); --init-weights needs the same variant"
+                f"{self.config.init_weights} holds another architecture ({listed}); "
+                "--init-weights needs the same variant and flags (e.g. --fsnet-growth)"
             )
         return state
 
@@ -378,8 +383,15 @@ class Trainer:
             )
 
     def _init_weights(self) -> None:
-        """Start from a whole trained model of the same variant (fine-tuning)."""
+        """Start from a whole trained model of the same variant (fine-tuning), its sigma's
+        calibration included (the scale the sigma head was trained in)."""
         load_weights(self.model, self._init_checkpoint["model"], self.config.init_weights)
+        theirs = ModelConfig.from_dict(self._init_checkpoint["model_config"])
+        self.model.config = replace(
+            self.model.config,
+            sigma_per_scale=theirs.sigma_per_scale,
+            sigma_edge_weight=theirs.sigma_edge_weight,
+        )
 
     def _check_segmentation_is_trained(self) -> None:
         """Stage 2 trains on FSNet's mask: a fresh run must train FSNet or be given one."""

@@ -83,6 +83,15 @@ class ModelConfig:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def architecture_differences(self, other: ModelConfig) -> dict[str, tuple]:
+        """Field -> (ours, theirs) where the two differ, leaving out sigma's calibration
+        (``sdc-train calibrate`` sets it on a trained model; the weights do not depend on it)."""
+        calibration = ("sigma_per_scale", "sigma_edge_weight")
+        ours, theirs = self.to_dict(), other.to_dict()
+        return {
+            k: (v, theirs[k]) for k, v in ours.items() if k not in calibration and v != theirs[k]
+        }
+
     @classmethod
     def from_dict(cls, d: dict) -> ModelConfig:
         """A config as saved in a checkpoint."""
