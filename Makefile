@@ -73,14 +73,16 @@ docker-check: $(STAMP)
 	bash docker/check.sh $(DOCKER_CHECK_ARGS)
 
 ## model: regenerate the data, train, evaluate and export the shipped model with its card (about
-## 2 h of training on 2 idle cores, 1 h of data; PRESET=paper on a GPU). The third design
+## 2.7 h of training on 2 idle cores, 1.2 h of data; PRESET=paper on a GPU). The third design
 ## (scale-free inputs, a fixed working-pixel budget, pre-fills that follow the returns' spacing,
 ## an uncertainty head) is trained on the `mixed` world, warm-started from the second shipped
 ## model (git $(PREVIOUS), whose card tells its own five runs on the paper's world), in the three
-## steps the shipped model took: FSNet one epoch; FSNet three more and stage 2 three (the shipped
+## steps the third model took: FSNet one epoch; FSNet three more and stage 2 three (its
 ## run had a six-epoch schedule and was stopped after three; its best epoch was the first); FSNet
-## fine-tuned three more epochs on the trained FDCNet. Then its sigma is calibrated on val, the
-## scale head alone, then with the depth-edge term.
+## fine-tuned three more epochs on the trained FDCNet; its sigma calibrated on val, the scale
+## head alone, then with the depth-edge term. The fourth model (shipped) widens that FSNet
+## (--fsnet-growth 2) and trains it 25 epochs in three runs on views 0-11 of the same world,
+## the depth networks kept; then its sigma is calibrated again the same way.
 .PHONY: model
 PRESET ?= cpu
 PREVIOUS ?= e6a386e
