@@ -209,7 +209,7 @@ ablation: $(STAMP)
 .PHONY: ablation-fsnet-growth
 NARROW := $(VENV)/bin/sdc-train fit --data data/mixed-v12 --preset $(PRESET) --iou-loss 1 \
 	--workers 2 --fsnet-growth 1 --epochs 0
-ablation-fsnet-growth: $(STAMP)
+ablation-fsnet-growth: $(STAMP) $(THIRD_ONNX)
 	git show $(THIRD):models/sdcnet.pt > runs/third/third-model.pt
 	$(NARROW) --out runs/ablation-fsnet-narrow --warm-start runs/third/third-model.pt \
 		--fsnet-epochs 5 --lr 1e-3 --seed 3 --val-samples 40
