@@ -72,8 +72,9 @@ DOCKER_CHECK_ARGS ?=
 docker-check: $(STAMP)
 	bash docker/check.sh $(DOCKER_CHECK_ARGS)
 
-## model: regenerate the data, train, evaluate and export the shipped model with its card (about
-## 2.7 h of training on 2 idle cores, 1.2 h of data; PRESET=paper on a GPU). The third design
+## model: regenerate the data, train, evaluate and export the shipped model with its card (the
+## third model's steps about 2 h of training on 2 idle cores and 1 h of data, the fourth's 38 min
+## and 8 min; PRESET=paper on a GPU). The third design
 ## (scale-free inputs, a fixed working-pixel budget, pre-fills that follow the returns' spacing,
 ## an uncertainty head) is trained on the `mixed` world, warm-started from the second shipped
 ## model (git $(PREVIOUS), whose card tells its own five runs on the paper's world), in the three

@@ -124,10 +124,10 @@ def main(argv: list[str] | None = None) -> int:
     }
     model = models["this model"]
     conditions = sorted(d for d in args.data.iterdir() if (d / "manifest.jsonl").exists())
-    by_condition = {c.name: time_frames(models, SampleStore(c), args.repeats) for c in conditions}
+    timed = {c.name: time_frames(models, SampleStore(c), args.repeats) for c in conditions}
     results = {}
     for name in models:
-        times = {c: ts[name] for c, ts in by_condition.items()}
+        times = {c: ts[name] for c, ts in timed.items()}
         results[name] = {c: stats(t) for c, t in times.items()}
         results[name]["all"] = stats([t for ts in times.values() for t in ts])
     if args.previous:
@@ -136,11 +136,19 @@ def main(argv: list[str] | None = None) -> int:
         results["previous model"]["all"] = stats([t for ts in previous.values() for t in ts])
     rows = [
         row(name, condition, s)
-        for condition in [*by_condition, "all"]
+        for condition in [*timed, "all"]
         for name, by_condition in results.items()
         if (s := by_condition.get(condition))
     ]
     print("\n".join(rows))
+    command = " ".join(
+        [
+            "python -m benchmarks.pipeline_latency",
+            *("--onnx", str(args.onnx), "--data", str(args.data)),
+            *(["--beside", *map(str, args.beside)] if args.beside else []),
+            *(["--previous", args.previous] if args.previous else []),
+        ]
+    )
     beside_note = (
         " Beside it, taking turns frame by frame: "
         + ", ".join(f"`{p}` (`{p.stem}`)" for p in args.beside)
@@ -160,9 +168,7 @@ sleep, as in the service), {args.repeats} passes over the frames of `{args.data}
 robustness suite's conditions: `sdc-eval robustness`). Per frame: crop to the LIDAR-bounded
 region, resample to the working grid ({model.info.work_pixels} pixels), the network, paste back,
 back-project the cloud: the service's work between decode and encode.{beside_note}{previous_note}
-Regenerate: `python -m benchmarks.pipeline_latency --onnx {args.onnx} --data {args.data}` \\
-`{" ".join(["--beside", *map(str, args.beside)]) if args.beside else ""}` \\
-`{"--previous " + args.previous if args.previous else ""}`.
+Regenerate: `{command}`.
 
 | condition | model | frames | median ms | p95 ms | max ms | p95 / median | {BUDGET_MS:.0f} ms |
 |---|---|---|---|---|---|---|---|

@@ -13,7 +13,7 @@ import json
 import os
 import platform
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from functools import cached_property
 from pathlib import Path
 
@@ -386,12 +386,8 @@ class Trainer:
         """Start from a whole trained model of the same variant (fine-tuning), its sigma's
         calibration included (the scale the sigma head was trained in)."""
         load_weights(self.model, self._init_checkpoint["model"], self.config.init_weights)
-        theirs = ModelConfig.from_dict(self._init_checkpoint["model_config"])
-        self.model.config = replace(
-            self.model.config,
-            sigma_per_scale=theirs.sigma_per_scale,
-            sigma_edge_weight=theirs.sigma_edge_weight,
-        )
+        # the same architecture (``_init_checkpoint`` checked it) with the checkpoint's calibration
+        self.model.config = ModelConfig.from_dict(self._init_checkpoint["model_config"])
 
     def _check_segmentation_is_trained(self) -> None:
         """Stage 2 trains on FSNet's mask: a fresh run must train FSNet or be given one."""
