@@ -233,12 +233,15 @@ DEPTH_EDGE_FOOTPRINTS = 4.0
 def resample_depth(depth: np.ndarray, shape: tuple[int, int], footprint_m: float) -> np.ndarray:
     """A depth map (metres) resampled to ``shape``: bilinear on surfaces, nearest across depth
     edges (``DEPTH_EDGE_FOOTPRINTS``), so no point is invented between a panel and the bus
-    behind it; nearest when shrinking."""
+    behind it; nearest when shrinking. An infinite ``footprint_m`` has no edges: bilinear
+    everywhere, without looking for them (a third of the cost on a 2048 x 2048 crop)."""
     if depth.shape == shape:
         return depth
     size = (shape[1], shape[0])
     if shape[0] * shape[1] < depth.shape[0] * depth.shape[1]:
         return cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
+    if not math.isfinite(footprint_m):
+        return cv2.resize(depth, size, interpolation=cv2.INTER_LINEAR)
     kernel = np.ones((3, 3), np.uint8)
     spread = cv2.dilate(depth, kernel) - cv2.erode(depth, kernel)
     edge = (spread > DEPTH_EDGE_FOOTPRINTS * footprint_m).astype(np.uint8)
@@ -415,8 +418,12 @@ def complete(
     prob_crop = resample_image(prob_w, grid.region.shape)
     depth_crop = resample_depth(anchored.depth, grid.region.shape, footprint)
     mask_crop = kept if grid.identity else prob_crop > threshold
+    # Off the mask the answer is 0. A resampled crop is a new array, set in place (a 2048 x
+    # 2048 crop spares a 16 MB copy); the working grid's own may be the model's output.
+    fresh = not grid.identity
+    depth_crop = np.multiply(depth_crop, mask_crop, out=depth_crop if fresh else None)
     sigma_crop = None
     if sigma_w is not None:
-        sigma_w = anchored_sigma(sigma_w, anchored)
-        sigma_crop = resample_depth(sigma_w, grid.region.shape, math.inf) * mask_crop
-    return Completion(depth_crop * mask_crop, mask_crop, prob_crop, grid, gray.shape, sigma_crop)
+        sigma_crop = resample_depth(anchored_sigma(sigma_w, anchored), grid.region.shape, math.inf)
+        np.multiply(sigma_crop, mask_crop, out=sigma_crop)
+    return Completion(depth_crop, mask_crop, prob_crop, grid, gray.shape, sigma_crop)

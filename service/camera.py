@@ -17,9 +17,8 @@ import logging
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-
 from sdcnet.calibration import CalibrationError, CameraCalibration, Undistorter, load_camera_file
+from sdcnet.pointcloud import mask_pixels
 from sdcnet.returns import scatter_nearest
 from sdcnet.service.decode import Frame
 from sdcnet.service.errors import ApiError
@@ -101,9 +100,7 @@ def undistorted(frame: Frame, undistorter: Undistorter) -> Frame:
     """The frame with its image undistorted and its returns moved along (the nearest wins a
     pixel two land on; those that land outside the frame are dropped); 422 ``no_returns``
     when none is left."""
-    # the returns' pixels, from one flat scan of a boolean map (np.nonzero on the float map
-    # is several times slower: docs/development.md, "Measurements")
-    rows, cols = np.divmod(np.flatnonzero(frame.sparse > 0), frame.sparse.shape[1])
+    rows, cols = mask_pixels(frame.sparse > 0)
     new_rows, new_cols, kept = undistorter.returns(rows, cols)
     if not kept.any():
         raise ApiError(

@@ -6,6 +6,7 @@ import pytest
 from sdcnet.camera import PAPER_CAMERA
 from sdcnet.pointcloud import (
     back_project,
+    mask_pixels,
     ply_bytes,
     point_pixels,
     read_ply,
@@ -37,6 +38,15 @@ def test_back_projection_inverts_the_camera():
     pixel_rows, pixel_cols = point_pixels(points, K)  # and back to their pixels, exactly
     np.testing.assert_array_equal(pixel_rows, rows)
     np.testing.assert_array_equal(pixel_cols, cols)
+
+
+def test_mask_pixels_are_numpys_nonzero_in_its_order():
+    mask = np.random.default_rng(0).random((37, 53)) < 0.3
+    for view in (mask, mask[5:30, 7:41], mask[::2, ::3], np.zeros((3, 4), bool)):
+        rows, cols = mask_pixels(view)
+        expected_rows, expected_cols = np.nonzero(view)
+        np.testing.assert_array_equal(rows, expected_rows)
+        np.testing.assert_array_equal(cols, expected_cols)
 
 
 def test_back_projection_of_nothing_is_an_empty_cloud():
