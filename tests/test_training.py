@@ -11,16 +11,18 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
+from sdcnet.dataset_format import SampleStore
 from sdcnet.evaluation.cli import main as eval_main
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint, transplant_weights
 from sdcnet.training.cli import main as train_main
 from sdcnet.training.cli import parser as train_parser
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
 from sdcnet.training.train import TrainConfig, config_from_preset
-from sdcnet.training.uncertainty import with_sigma
+from sdcnet.training.uncertainty import error_ratios, with_sigma
 
 
 @pytest.fixture(scope="module")
@@ -379,6 +381,11 @@ def test_calibrate_scales_sigma_to_cover_68_percent_of_the_errors(
     report = state["sigma_calibration"]
     assert report["within_1_after"] == pytest.approx(0.68, abs=0.01)
     assert report["within_2_after"] >= report["within_1_after"]
+    # and what the scaled model's sigma covers through the pipeline, measured, not assumed
+    store = SampleStore(tiny_dataset)
+    served = error_ratios(after, store, store.split("train", 4))
+    assert report["within_1_served"] == pytest.approx(np.mean(served <= 1))
+    assert report["within_2_served"] == pytest.approx(np.mean(served <= 2))
     factor = after.config.sigma_per_scale / before.config.sigma_per_scale
     assert factor == pytest.approx(report["factor"])
     # the default depth-edge weight (0.5) joined the scale head's sigma, then both were scaled

@@ -5,6 +5,12 @@ The scale head is trained to the Laplace negative log-likelihood; whether |error
 measures the ratio |error| / sigma on the true-positive pixels of a split and scales the
 model's sigma (``sigma_per_scale`` and the depth-edge term's ``sigma_edge_weight`` alike) so that
 its 68th percentile is 1.
+
+The pipeline then anchors the depth to the returns and rescales sigma frame by frame by the
+network's error there (``sdcnet.anchoring.anchored_sigma``), which cancels a factor common to
+both parts: what the scaling changes in the answers is the ratio of the two (and sigma on frames
+without a return on the mask). So the command measures the scaled model again through the
+pipeline and reports that too (``within_1_served``, ``within_2_served``).
 """
 
 from __future__ import annotations
@@ -92,6 +98,13 @@ def calibrate_checkpoint(
     if not records:
         raise ValueError(f"split {split!r} is empty in {data}")
     fixed, report = calibrated(model, error_ratios(model, store, records))
+    # What is served: the pipeline's anchoring rescales sigma frame by frame by the returns'
+    # residuals, which cancels much of a common factor (docs/development.md, "Measurements").
+    served = error_ratios(fixed, store, records)
+    report |= {
+        "within_1_served": float(np.mean(served <= 1)),
+        "within_2_served": float(np.mean(served <= 2)),
+    }
     keep = {k: v for k, v in state.items() if k not in ("model", "model_config")}
     keep["sigma_calibration"] = {**report, "data": data, "split": split, "frames": len(records)}
     save_checkpoint(Path(out), fixed, **keep)
@@ -101,5 +114,7 @@ def calibrate_checkpoint(
         f"within 1 / 2 sigma {100 * report['within_1_before']:.1f} / "
         f"{100 * report['within_2_before']:.1f} % -> {100 * report['within_1_after']:.1f} / "
         f"{100 * report['within_2_after']:.1f} % on {report['pixels']} px of {len(records)} "
-        f"{split} frames; wrote {out}"
+        f"{split} frames; measured again through the pipeline, whose anchoring rescales sigma "
+        f"per frame: {100 * report['within_1_served']:.1f} / "
+        f"{100 * report['within_2_served']:.1f} %; wrote {out}"
     )
