@@ -297,48 +297,32 @@ class Completion:
         return None if self.sigma_crop is None else self._full(self.sigma_crop)
 
 
-#: Foreground components without a LIDAR return are kept only this close (working pixels) to
-#: the spacecraft, i.e. to a return or to a component kept before (a chain along a boom) ...
-KEEP_DISTANCE_PX = 16.0
-#: ... and only from this many working pixels: a star is a blur of a few pixels, a part larger.
-MIN_PART_PX = 8
+#: A foreground component is the spacecraft's when a LIDAR return lies on it or this close to
+#: it (working pixels, Chebyshev): a return just off the predicted outline (rounded onto the
+#: working grid, or seen from the LIDAR's own viewpoint a few centimetres from the camera's)
+#: still vouches for the part it hit.
+RETURN_REACH_PX = 1
 
 
-def drop_specks(
-    mask: np.ndarray, sparse: np.ndarray, keep_distance_px: float, min_part_px: float
-) -> np.ndarray:
-    """``mask`` without the components that cannot be the spacecraft: stars and noise.
+def drop_specks(mask: np.ndarray, sparse: np.ndarray, reach_px: int) -> np.ndarray:
+    """``mask`` without the components that cannot be the spacecraft: stars, the Earth, glare.
 
-    The LIDAR answers from the whole target, so a component (8-connected) holding a return is
-    the spacecraft. One without returns (a boom or an antenna too thin or dark for the beams,
-    or a star) is kept when it covers at least ``min_part_px`` pixels and a chain of foreground
-    components, each within ``keep_distance_px`` (Chebyshev) of the next, links it to a return.
-    Specks off the target lie far from every return and cover a few pixels; the parts of the
-    spacecraft lie a few spacings of returns away and are larger, so a distance and an area
-    between the two keep the one and drop the other (the frames that chose
-    ``KEEP_DISTANCE_PX`` and ``MIN_PART_PX``: docs/development.md, "Measurements").
-
-    One dilation by half the distance joins what is linked; its connected pieces that hold a
-    return are the spacecraft's reach.
+    The LIDAR answers from the target and never from the sky behind it, so a component
+    (8-connected) with a return on it, or within ``reach_px``, is the spacecraft, and one
+    without is not, however close: a bright patch of cloud or limb beside the target is glued
+    to it only through the network's mask, never through a return. A part of the spacecraft
+    the beams all missed and the mask shows detached from the rest (a thin boom between scan
+    lines) goes with them: on the robustness suite that cost 0.4 points of IOU at most and cut
+    the false specks per frame by two thirds or more in every condition (docs/development.md,
+    "Measurements").
     """
-    mask = mask.astype(bool)
-    returns = sparse > 0
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(
-        mask.astype(np.uint8), connectivity=8
-    )
-    own_return = np.bincount(labels[returns], minlength=count) > 0
-    big_enough = own_return | (stats[:, cv2.CC_STAT_AREA] >= min_part_px)
-    big_enough[0] = False
-    candidates = big_enough[labels]
-    reach = int(np.ceil(keep_distance_px / 2))
-    joined = cv2.dilate(
-        (candidates | returns).astype(np.uint8),
-        np.ones((2 * reach + 1, 2 * reach + 1), np.uint8),
-    )
-    pieces, piece_of = cv2.connectedComponents(joined, connectivity=8)
-    anchored = np.bincount(piece_of[returns], minlength=pieces) > 0
-    anchored[0] = False
-    return candidates & anchored[piece_of]
+    count, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    returns = (sparse > 0).astype(np.uint8)
+    if reach_px > 0:
+        returns = cv2.dilate(returns, np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8))
+    vouched = np.bincount(labels[returns > 0], minlength=count) > 0
+    vouched[0] = False
+    return vouched[labels]
 
 
 @dataclass(frozen=True)
@@ -408,7 +392,7 @@ def complete(
     inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels)
     grid = inputs.grid
     depth_w, prob_w, sigma_w = run_model(model, inputs)
-    kept = drop_specks(prob_w > threshold, inputs.sparse, KEEP_DISTANCE_PX, MIN_PART_PX)
+    kept = drop_specks(prob_w > threshold, inputs.sparse, RETURN_REACH_PX)
     prob_w = np.where(kept | (prob_w <= threshold), prob_w, 0.0).astype(np.float32)
     rows, cols = return_pixels(inputs.sparse)
     spread_px = spreading_sigma_px(return_spacing(rows, cols), 1.0 / grid.scale[1])

@@ -128,28 +128,32 @@ def test_resample_depth_interpolates_surfaces_but_never_between_two_of_them():
     assert len(np.unique(big[:, :12])) > 4, "the slope is interpolated"
 
 
-def test_stars_are_dropped_and_detached_parts_near_the_returns_kept():
+def test_only_components_the_returns_vouch_for_are_kept():
     mask = np.zeros((200, 200), bool)
     sparse = np.zeros((200, 200), np.float32)
     mask[50:90, 50:90] = True  # the body
     sparse[60, 60] = 100.0
-    mask[95:97, 50:90] = True  # a boom 5 px from the body, no return
-    mask[110:112, 50:90] = True  # and its continuation 13 px further: kept hop by hop
+    mask[95:97, 50:90] = True  # a boom 5 px from the body that no beam hit
     mask[150:153, 170:173] = True  # a star 60 px away
-    mask[40:42, 95:99] = True  # a detached part of 8 px, 5 px off the body's corner
     mask[45, 45] = True  # a star of 1 px next to the body
-    kept = drop_specks(mask, sparse, keep_distance_px=16.0, min_part_px=8)
-    assert kept[50:90, 50:90].all() and kept[95:97, 50:90].all() and kept[110:112, 50:90].all()
-    assert kept[40:42, 95:99].all()
+    mask[120:126, 120:140] = True  # a part with a return of its own, apart from the body
+    sparse[123, 130] = 90.0
+    kept = drop_specks(mask, sparse, reach_px=1)
+    assert kept[50:90, 50:90].all() and kept[120:126, 120:140].all()
+    assert not kept[95:97, 50:90].any(), "no return vouches for it"
     assert not kept[150:153, 170:173].any() and not kept[45, 45]
-    assert kept.sum() == 40 * 40 + 2 * 80 + 8
+    assert kept.sum() == 40 * 40 + 6 * 20
     edge_return = np.zeros_like(sparse)
     edge_return[49, 70] = 100.0  # a return one pixel outside the predicted outline
-    assert drop_specks(mask, edge_return, 16.0, 8)[50:90, 50:90].all()
-    assert not drop_specks(mask, np.zeros_like(sparse), 16.0, 8).any()
+    assert drop_specks(mask, edge_return, 1)[50:90, 50:90].all()
+    assert not drop_specks(mask, edge_return, 0).any(), "without reach it must lie on the mask"
+    two_off = np.zeros_like(sparse)
+    two_off[48, 70] = 100.0  # two pixels outside: beyond a reach of 1
+    assert not drop_specks(mask, two_off, 1).any()
+    assert not drop_specks(mask, np.zeros_like(sparse), 1).any()
     lone_return = np.zeros_like(sparse)
     lone_return[45, 45] = 100.0  # a 1 px component holding a return is the spacecraft
-    assert drop_specks(mask, lone_return, 16.0, 8)[45, 45]
+    assert drop_specks(mask, lone_return, 1)[45, 45]
 
 
 def test_complete_drops_stars_from_the_mask_and_the_depth():
