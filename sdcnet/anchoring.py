@@ -20,9 +20,11 @@ Anchoring changes how far the depth can be trusted, and the returns say how good
 was on this frame, so the network's sigma is recombined with what they measured
 (``anchored_sigma``): it is first rescaled by the frame's median ratio of the network's error
 at the returns to its sigma there (a frame of another camera, LIDAR or sky is harder or easier
-than the frames sigma was calibrated on, and the returns show which); next to a return the
-depth is the measurement, so that sigma counts ``SIGMA_AT_RETURN`` times, away from every
-return ``SIGMA_AWAY`` times; where the network missed the returns by more than the noise, the
+than the frames sigma was calibrated on, and the returns show which); it counts
+``SIGMA_AT_RETURN`` times at a return and grows with the lateral distance to the nearest
+return in metres (``SIGMA_PER_APART_M``: a surface strays from what was measured on it with
+how far one goes, whatever the camera or LIDAR; a distance in pixels or in return spacings
+would change with them); where the network missed the returns by more than the noise, the
 depth between them is uncertain by about as much (the *misfit*); and no depth is better than
 the LIDAR's own noise.
 
@@ -46,20 +48,20 @@ SIGMA_PER_SPACING = 0.75
 SIGMA_BOUNDS_PX = (1.5, 6.0)
 #: Residuals within this many noise scales (``MAD_TO_STD`` x their median absolute value) are
 #: taken as the LIDAR's noise.
-SHRINK = 0.75
+SHRINK = 0.5
 #: Median absolute deviation -> standard deviation, for Gaussian noise.
 MAD_TO_STD = 1.4826
 
 #: ``anchored_sigma``'s coefficients (fit on validation frames of the mixed world: see the
 #: module's docstring for where): the network's sigma, rescaled by the frame's error ratio at
-#: the returns, counts ``SIGMA_AT_RETURN`` times at a return and about ``SIGMA_AWAY`` times
-#: away from every return, ...
-SIGMA_AT_RETURN = 1.25
-SIGMA_AWAY = 10.0
+#: the returns, counts ``SIGMA_AT_RETURN`` times at a return, and ``SIGMA_PER_APART_M`` times
+#: per metre of lateral distance to the nearest return, in quadrature; ...
+SIGMA_AT_RETURN = 1.75
+SIGMA_PER_APART_M = 14.0
 #: ... the local misfit (metres) and the frame's noise (metres, a standard deviation) this
 #: many times, all in quadrature.
-SIGMA_PER_MISFIT = 2.0
-SIGMA_PER_NOISE = 0.5
+SIGMA_PER_MISFIT = 1.5
+SIGMA_PER_NOISE = 0.25
 #: The frame's error ratio is at least this: a network that fits the returns exactly is not
 #: exact between them.
 MIN_ERROR_RATIO = 0.02
@@ -67,15 +69,16 @@ MIN_ERROR_RATIO = 0.02
 
 @dataclass(frozen=True)
 class Anchored:
-    """The anchored depth (h, w metres) and what anchoring measured on the same grid: the
-    returns' ``reach`` (1 at a return, fading to 0 a few kernel widths away), the local
-    ``misfit`` (metres: the kernel-weighted mean of the returns' residuals less the noise),
+    """The anchored depth (h, w metres) and what anchoring measured on the same grid: how far
+    each pixel lies from the nearest return (``apart_m``, metres across the line of sight: its
+    distance in pixels times its depth's footprint), the local ``misfit`` (metres: the
+    kernel-weighted mean of the returns' residuals less the noise),
     the frame's ``noise_m`` (metres, the residuals' robust standard deviation), and where the
     returns on the mask are (``rows``, ``cols``) with the depth's ``residual`` there (metres,
     measured - predicted, before anchoring)."""
 
     depth: np.ndarray
-    reach: np.ndarray
+    apart_m: np.ndarray
     misfit: np.ndarray
     noise_m: float
     rows: np.ndarray
@@ -95,14 +98,14 @@ def spreading_sigma_px(spacing_px: float | None, frame_px_per_pixel: float) -> f
 
 
 def anchor_to_returns(
-    depth: np.ndarray, mask: np.ndarray, sparse: np.ndarray, sigma_px: float
+    depth: np.ndarray, mask: np.ndarray, sparse: np.ndarray, sigma_px: float, focal_px: float
 ) -> Anchored:
     """``depth`` (H, W metres) corrected by its residuals at the returns of ``sparse`` (H, W
     metres, 0 = none) that fall on ``mask`` (H, W bool, the spacecraft: returns off it are
     not the depth's to agree with), spread with a Gaussian of ``sigma_px`` pixels; unchanged
-    (reach, misfit and noise 0) without such returns. The correction covers the whole grid,
+    (apart, misfit and noise 0) without such returns. The correction covers the whole grid,
     so that resampling the mask to the frame never meets an uncorrected pixel at its
-    border."""
+    border. ``focal_px``: the grid's focal length in its pixels, for ``apart_m``."""
     rows, cols = np.nonzero((sparse > 0) & mask & (depth > 0))
     if len(rows) == 0:
         nothing = np.zeros(depth.shape, np.float32)
@@ -124,7 +127,9 @@ def anchor_to_returns(
     correction = reach * spread(local) / total
     misfit = spread(np.abs(local)) / total
     corrected = (depth + correction).astype(np.float32)
-    return Anchored(corrected, reach, misfit, noise_m, rows, cols, residual)
+    apart_px = cv2.distanceTransform((sparse <= 0).astype(np.uint8), cv2.DIST_L2, 5)
+    apart_m = apart_px * np.abs(corrected) / focal_px
+    return Anchored(corrected, apart_m, misfit, noise_m, rows, cols, residual)
 
 
 def error_ratio(sigma: np.ndarray, anchored: Anchored) -> float:
@@ -132,7 +137,7 @@ def error_ratio(sigma: np.ndarray, anchored: Anchored) -> float:
     ``MIN_ERROR_RATIO``); without such returns, the ratio that leaves ``anchored_sigma`` the
     network's own sigma."""
     if anchored.residual.size == 0:
-        return 1.0 / math.hypot(SIGMA_AT_RETURN, SIGMA_AWAY)
+        return 1.0 / SIGMA_AT_RETURN
     at_returns = np.maximum(sigma[anchored.rows, anchored.cols], 1e-9)
     return max(float(np.median(np.abs(anchored.residual) / at_returns)), MIN_ERROR_RATIO)
 
@@ -141,6 +146,6 @@ def anchored_sigma(sigma: np.ndarray, anchored: Anchored) -> np.ndarray:
     """The network's ``sigma`` (h, w metres) recombined with what anchoring measured (see the
     module's docstring): float32 metres on the same grid."""
     rescaled = sigma * error_ratio(sigma, anchored)
-    scale = SIGMA_AT_RETURN**2 + (SIGMA_AWAY * (1.0 - anchored.reach)) ** 2
+    scale = SIGMA_AT_RETURN**2 + (SIGMA_PER_APART_M * anchored.apart_m) ** 2
     variance = rescaled * rescaled * scale + (SIGMA_PER_MISFIT * anchored.misfit) ** 2
     return np.sqrt(variance + (SIGMA_PER_NOISE * anchored.noise_m) ** 2).astype(np.float32)

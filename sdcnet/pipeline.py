@@ -396,7 +396,9 @@ def complete(
     prob_w = np.where(kept | (prob_w <= threshold), prob_w, 0.0).astype(np.float32)
     rows, cols = return_pixels(inputs.sparse)
     spread_px = spreading_sigma_px(return_spacing(rows, cols), 1.0 / grid.scale[1])
-    anchored = anchor_to_returns(depth_w, prob_w > threshold, inputs.sparse, spread_px)
+    anchored = anchor_to_returns(
+        depth_w, prob_w > threshold, inputs.sparse, spread_px, inputs.focal_px
+    )
     returns = inputs.sparse[rows, cols]
     footprint = float(returns.mean()) / inputs.focal_px if returns.size else 1.0
     prob_crop = resample_image(prob_w, grid.region.shape)
