@@ -127,8 +127,8 @@ def anchor_to_returns(
     correction = reach * spread(local) / total
     misfit = spread(np.abs(local)) / total
     corrected = (depth + correction).astype(np.float32)
-    apart_px = cv2.distanceTransform((sparse <= 0).astype(np.uint8), cv2.DIST_L2, 5)
-    apart_m = apart_px * np.abs(corrected) / focal_px
+    apart_m = cv2.distanceTransform(cv2.compare(sparse, 0, cv2.CMP_LE), cv2.DIST_L2, 5)
+    apart_m *= np.abs(corrected) / focal_px  # pixels -> metres
     return Anchored(corrected, apart_m, misfit, noise_m, rows, cols, residual)
 
 
