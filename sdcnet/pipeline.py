@@ -98,9 +98,21 @@ def return_spacing(rows: np.ndarray, cols: np.ndarray) -> float | None:
     fewer than ``MIN_RETURNS_FOR_SPACING`` returns or returns on one line."""
     if len(rows) < MIN_RETURNS_FOR_SPACING:
         return None
-    points = np.stack([cols, rows], 1).astype(np.float32)
-    area = cv2.contourArea(cv2.convexHull(points))
+    area = cv2.contourArea(cv2.convexHull(row_ends(rows, cols)))
     return math.sqrt(area / len(rows)) if area > 0 else None
+
+
+def row_ends(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The leftmost and rightmost of the pixels (``rows``, ``cols``) in each of their rows, as
+    (x, y) float32 points: they have the same convex hull as all of them, and a dense LIDAR's
+    128k returns take 13 ms to hull where their 3k row ends take 1.6."""
+    if np.any(rows[1:] < rows[:-1]):  # row-major order, as return_pixels gives them
+        order = np.argsort(rows, kind="stable")
+        rows, cols = rows[order], cols[order]
+    starts = np.flatnonzero(np.diff(rows, prepend=rows[0] - 1))
+    ends = (np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts))
+    ys = np.concatenate([rows[starts], rows[starts]])
+    return np.stack([np.concatenate(ends), ys], 1).astype(np.float32)
 
 
 def return_pixels(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -246,11 +258,13 @@ def resample_depth(depth: np.ndarray, shape: tuple[int, int], footprint_m: float
     spread = cv2.dilate(depth, kernel) - cv2.erode(depth, kernel)
     edge = (spread > DEPTH_EDGE_FOOTPRINTS * footprint_m).astype(np.uint8)
     linear = cv2.resize(depth, size, interpolation=cv2.INTER_LINEAR)
-    rows, cols = return_pixels(cv2.resize(edge, size, interpolation=cv2.INTER_NEAREST))
-    if len(rows):  # nearest neighbour (as OpenCV picks it) on the few edge pixels
-        src_rows = np.minimum(rows * depth.shape[0] // shape[0], depth.shape[0] - 1)
-        src_cols = np.minimum(cols * depth.shape[1] // shape[1], depth.shape[1] - 1)
-        linear[rows, cols] = depth[src_rows, src_cols]
+    # nearest neighbour on the edge pixels: pixel i of n takes source pixel i * m // n of m
+    # (OpenCV's own nearest rounds some of those down), gathered along each axis in turn and
+    # copied under the edge mask (indexing the edge pixels took up to 13 ms a frame)
+    src_rows = np.arange(shape[0]) * depth.shape[0] // shape[0]
+    src_cols = np.arange(shape[1]) * depth.shape[1] // shape[1]
+    nearest = np.take(np.take(depth, src_rows, axis=0), src_cols, axis=1)
+    cv2.copyTo(nearest, cv2.resize(edge, size, interpolation=cv2.INTER_NEAREST), linear)
     return linear
 
 

@@ -1,5 +1,6 @@
 """The crop-resample-infer-paste pipeline every consumer shares, and its fixed budget."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -13,6 +14,8 @@ from sdcnet.pipeline import (
     region_of_interest,
     resample_depth,
     resample_sparse,
+    return_spacing,
+    row_ends,
     working_grid,
 )
 
@@ -131,6 +134,27 @@ def test_resample_depth_interpolates_surfaces_but_never_between_two_of_them():
     values = np.unique(np.round(big, 3))
     assert not ((values > 100.1) & (values < 104.0)).any(), "no point between the surfaces"
     assert len(np.unique(big[:, :12])) > 4, "the slope is interpolated"
+
+
+def test_the_edge_pixels_take_the_exact_nearest_source_pixel():
+    depth = np.full((576, 384), 100.0, np.float32)
+    depth[:, 192:] = 104.0 + np.arange(192, dtype=np.float32)  # behind, a step per column
+    big = resample_depth(depth, (882, 588), footprint_m=0.01)
+    cols = np.arange(588)
+    on_edge = (cols >= 292) & (cols <= 300)  # around the step at 192 * 588 / 384 = 294
+    expected = depth[0, cols * 384 // 588]  # 588 / 384 is not exact in floating point
+    np.testing.assert_array_equal(big[0, on_edge], expected[on_edge])
+
+
+def test_the_returns_spacing_comes_from_their_row_ends_in_any_order():
+    rng = np.random.default_rng(0)
+    rows, cols = rng.integers(0, 500, 4000), rng.integers(0, 700, 4000)
+    points = np.stack([cols, rows], 1).astype(np.float32)
+    hull_area = cv2.contourArea(cv2.convexHull(points))
+    assert cv2.contourArea(cv2.convexHull(row_ends(rows, cols))) == hull_area
+    assert return_spacing(rows, cols) == pytest.approx(np.sqrt(hull_area / 4000))
+    assert len(row_ends(rows, cols)) <= 2 * 500
+    assert return_spacing(np.array([5, 5, 5]), np.array([1, 9, 30])) is None  # on one line
 
 
 def test_only_components_the_returns_vouch_for_are_kept():
