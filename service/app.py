@@ -10,6 +10,7 @@ short ones operators type) and Triton's metric names; every error has one JSON s
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -22,7 +23,7 @@ from sdcnet.runtime.registry import load_runtime
 from sdcnet.service.admission import Admission
 from sdcnet.service.camera import ServiceCamera, configured_camera
 from sdcnet.service.errors import install_error_handlers
-from sdcnet.service.inference import Engine, self_test
+from sdcnet.service.inference import SELF_TEST_SIZE, Engine, self_test, warm_up
 from sdcnet.service.metrics import ServiceMetrics
 from sdcnet.service.pose import configured_targets
 from sdcnet.service.routes import ROUTERS, v2_infer
@@ -46,8 +47,9 @@ Every error, whatever its status, is `{"error": {"code": ..., "message": ...}}`
 
 def load_model(settings: Settings) -> Runtime:
     """The model the settings name under the runtime they choose, checked by one inference on
-    a small frame; raises ``ModelLoadError`` with a clear message, so that a file that loads
-    but cannot serve stops the start-up rather than failing every request."""
+    a small frame, then warmed up on the largest frame the settings accept; raises
+    ``ModelLoadError`` with a clear message, so that a file that loads but cannot serve stops
+    the start-up rather than failing every request."""
     if settings.model_path.is_dir():
         raise ModelLoadError(f"{settings.model_path} is a directory, not an ONNX model file")
     model = load_runtime(
@@ -58,6 +60,7 @@ def load_model(settings: Settings) -> Runtime:
         settings.spin_wait,
     )
     self_test(model)
+    warm_up(model, max(SELF_TEST_SIZE, math.isqrt(settings.max_pixels)))
     return model
 
 

@@ -226,6 +226,22 @@ def complete_frame(
     )
 
 
+#: Pixels between the returns of the warm-up frame (``warm_up``): a grid across the whole
+#: frame, so that its crop is the frame and its working grid the model's budget.
+WARM_UP_RETURN_STEP = 16
+
+
+def warm_up(model: Runtime, side: int) -> None:
+    """Complete one synthetic frame of ``side`` x ``side`` pixels (the largest the service
+    accepts) whose returns cover it: onnxruntime's arena grows to the working budget and the
+    allocator's heap to the full-resolution maps before the first request, not during it
+    (docs/development.md, "Measurements")."""
+    gray = np.zeros((side, side), np.uint8)
+    sparse = np.zeros((side, side), np.float32)
+    sparse[::WARM_UP_RETURN_STEP, ::WARM_UP_RETURN_STEP] = 100.0
+    complete(model.run, gray, sparse, 1000.0, model.stride, model.info.work_pixels)
+
+
 @dataclass(frozen=True)
 class Answer:
     """What every inference route answers: its body (spooled), media type and extra headers,

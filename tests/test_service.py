@@ -32,7 +32,7 @@ from sdcnet.calibration import CameraCalibration, Undistorter
 from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Client
 from sdcnet.npyio import npy_bytes
-from sdcnet.pipeline import complete
+from sdcnet.pipeline import WORK_PIXELS, complete
 from sdcnet.pointcloud import back_project, read_ply, statistical_outliers
 from sdcnet.returns import returns_from_dense, scatter_nearest
 from sdcnet.runtime.onnx import OnnxModel
@@ -40,7 +40,7 @@ from sdcnet.service.admission import slot_routes
 from sdcnet.service.app import create_app
 from sdcnet.service.camera import ANSWER_FRAME
 from sdcnet.service.deps import get_engine
-from sdcnet.service.inference import Engine
+from sdcnet.service.inference import Engine, warm_up
 from sdcnet.service.routes import ROUTERS
 from sdcnet.service.settings import Settings, get_settings
 from tests.support.frames import png_bytes, synthetic_frame
@@ -94,6 +94,25 @@ def client(request, model_path, engine):
         return
     with TestClient(create_app(settings(model_path), engine.model)) as http:
         yield http
+
+
+def test_the_warm_up_runs_the_network_on_its_budget_for_a_whole_frame(engine):
+    """What the start-up warms: a frame of the largest accepted side whose crop is the whole
+    frame, on a working grid at the model's budget (the first request's worst case)."""
+    shapes, focals = [], []
+
+    class Recording:
+        stride, info = engine.model.stride, engine.model.info
+
+        def run(self, gray, sparse, focal_px):
+            shapes.append(gray.shape)
+            focals.append(float(focal_px.ravel()[0]))
+            return engine.model.run(gray, sparse, focal_px)
+
+    warm_up(Recording(), 2048)
+    ((_, _, height, width),) = shapes
+    assert 0.8 * WORK_PIXELS <= height * width <= WORK_PIXELS
+    assert focals[0] == pytest.approx(1000.0 * width / 2048)  # the crop is the whole frame
 
 
 def frame():
