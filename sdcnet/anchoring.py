@@ -11,8 +11,9 @@ module corrects the depth by its residuals at the returns (measured - predicted,
    off every residual, so that on a panel the model fits well the noise is not copied into
    the surface and the normals stay, while an error far above the noise (a depth edge) is
    corrected, less the noise. Most returns lie on surfaces the model fits, so the median
-   measures the noise; a bias of the whole surface is mostly taken for noise too (all but
-   1 - ``SHRINK`` x ``MAD_TO_STD``, a quarter of it, is left);
+   measures the noise; a bias of the whole surface is mostly taken for noise too
+   (``SHRINK`` x ``MAD_TO_STD``, three quarters of it, is left; the rest is corrected near
+   the returns);
 2. the corrections are spread by a normalised Gaussian convolution (``sigma_px``
    from the returns' spacing): at a return the correction is mostly its own, between returns a
    weighted mean of the near ones, and it fades to nothing a few ``sigma_px`` away from any.
