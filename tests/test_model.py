@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from sdcnet.dataset_format import SampleStore
+from sdcnet.camera import PAPER_CAMERA
+from sdcnet.dataset_format import SampleStore, write_sample
+from sdcnet.pipeline import Region
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint, transplant_weights
-from sdcnet.training.dataset import TileDataset
+from sdcnet.training.dataset import TileDataset, holding_target
 from sdcnet.training.losses import (
     depth_gradient_loss,
     foreground_depth_loss,
@@ -25,6 +27,7 @@ from sdcnet.training.model.sdcnet import (
     build_model,
     local_depth_spread,
 )
+from tests.support.frames import write_dataset
 
 FOCAL = torch.full((1, 1, 1, 1), 7939.2)
 
@@ -366,3 +369,32 @@ def test_the_depth_edge_term_joins_sigma_at_inference_only():
     spread = 0.5 * local_depth_spread(depth, prob > 0.5)
     assert spread.any()
     torch.testing.assert_close(answered, torch.sqrt(sigma**2 + spread**2))
+
+
+def test_holding_target_joins_the_truth_box_to_the_region():
+    depth = np.zeros((100, 120), np.float32)
+    depth[30:40, 10:90] = 50.0
+    grown = holding_target(Region(20, 60, 40, 70), depth)
+    assert (grown.y0, grown.y1, grown.x0, grown.x1) == (20, 60, 10, 90)
+    assert holding_target(Region(1, 2, 3, 4), np.zeros_like(depth)) == Region(1, 2, 3, 4)
+
+
+def test_whole_target_items_hold_the_parts_no_return_reached(tmp_path):
+    """Returns on the left half of the spacecraft only (a LIDAR narrower than the camera):
+    the pipeline's crop cuts the right wing away; a whole-target item keeps all of it."""
+    root = write_dataset(tmp_path / "data", {"train": 1}, size=256)
+    store = SampleStore(root)
+    sample = store.load(store.records[0])
+    K = PAPER_CAMERA.intrinsics().scaled(256, 256)
+    sample.sparse[:, 128:] = 0
+    sample.meta["intrinsics"] = K.as_dict()
+    write_sample(root / store.records[0]["file"], sample)
+    covered = {}
+    for share in (0.0, 1.0):
+        item = TileDataset(store, store.records, tile=None, stride=64, whole_target_share=share)[0]
+        scale = float(item["focal_px"]) / K.fx  # working pixels per frame pixel
+        covered[share] = float((item["depth"] > 0).sum()) / scale**2 / sample.mask.sum()
+    assert covered[1.0] == pytest.approx(1.0, abs=0.05)
+    assert covered[0.0] < 0.85
+    with pytest.raises(ValueError, match="whole_target_share"):
+        TileDataset(store, store.records, stride=64, whole_target_share=1.5)

@@ -5,6 +5,12 @@ region resampled to its working grid by the pipeline itself (``sdcnet.pipeline.w
 then a ``tile`` x ``tile`` window of it (the whole grid, zero-padded, when it is smaller;
 paper: random crop to 512 x 512). The working-pixel budget is jittered per item, so the network
 also sees each spacecraft a little larger and smaller than the pipeline will show it.
+
+A share of items (``whole_target_share``) crops instead the returns' region grown to hold the
+whole spacecraft: a LIDAR whose field is narrower than the camera's (a flash array covering a
+third of the frame) or that misses a dark dish leaves parts of the target without a return,
+which the pipeline's crop cuts away in training but which the mask must still cover; without
+such items the network learns that the spacecraft ends where its returns do.
 Augmentation: horizontal and vertical flips, brightness, contrast and gamma jitter.
 """
 
@@ -16,7 +22,13 @@ import torch
 from torch.utils.data import Dataset
 
 from sdcnet.dataset_format import SampleStore
-from sdcnet.pipeline import WORK_PIXELS, resample_image, working_inputs
+from sdcnet.pipeline import (
+    WORK_PIXELS,
+    Region,
+    region_of_interest,
+    resample_image,
+    working_inputs,
+)
 
 #: Range of the working-pixel budget a training item is drawn at, as a factor of the pipeline's.
 BUDGET_JITTER = (0.5, 1.5)
@@ -48,6 +60,21 @@ def random_window(
     return out
 
 
+def holding_target(region: Region, depth: np.ndarray) -> Region:
+    """``region`` grown to hold the spacecraft's whole ground-truth mask (``depth`` > 0, the
+    frame's, metres): its bounding box joined to the region."""
+    rows = np.flatnonzero(np.any(depth > 0, axis=1))
+    cols = np.flatnonzero(np.any(depth > 0, axis=0))
+    if rows.size == 0:
+        return region
+    return Region(
+        min(region.y0, int(rows[0])),
+        max(region.y1, int(rows[-1]) + 1),
+        min(region.x0, int(cols[0])),
+        max(region.x1, int(cols[-1]) + 1),
+    )
+
+
 def jitter_gray(gray: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Brightness, contrast and gamma jitter of a [0, 1] image (the sky stays near black)."""
     gamma = rng.uniform(0.8, 1.25)
@@ -72,10 +99,14 @@ class TileDataset(Dataset):
         stride: int,
         tile: int | None = 512,
         augment: bool = False,
+        whole_target_share: float = 0.0,
         seed: int = 0,
     ):
+        if not 0.0 <= whole_target_share <= 1.0:
+            raise ValueError(f"whole_target_share must be in [0, 1], got {whole_target_share}")
         self.store, self.records = store, records
         self.tile, self.augment, self.seed, self.stride = tile, augment, seed, stride
+        self.whole_target_share = whole_target_share
         self.epoch = 0  # set by the trainer: new windows and jitter every epoch, reproducibly
 
     def __len__(self) -> int:
@@ -88,7 +119,10 @@ class TileDataset(Dataset):
         if self.augment:
             budget = round(budget * rng.uniform(*BUDGET_JITTER))
         fx = float(sample.meta["intrinsics"]["fx"])
-        inputs = working_inputs(sample.gray, sample.sparse, fx, self.stride, budget)
+        region = None
+        if self.whole_target_share and rng.random() < self.whole_target_share:
+            region = holding_target(region_of_interest(sample.sparse), sample.depth)
+        inputs = working_inputs(sample.gray, sample.sparse, fx, self.stride, budget, region)
         rows, cols = inputs.grid.region.slices
         depth = resample_truth(sample.depth[rows, cols], inputs.grid.shape)
         gray, sparse = inputs.gray, inputs.sparse

@@ -157,6 +157,7 @@ class Trainer:
             train,
             tile=config.tile,
             augment=True,
+            whole_target_share=config.whole_target_share,
             seed=config.seed,
             stride=self.model.config.stride,
         )

@@ -52,6 +52,11 @@ class TrainConfig:
     sigma_loss: float = setting(
         1.0, "weight of the uncertainty's Laplace NLL (stage 2; depth detached)"
     )
+    whole_target_share: float = setting(
+        0.0,
+        "share of training items cropped to hold the whole spacecraft, not only its returns' "
+        "region: teaches the mask the parts no return reached (a LIDAR narrower than the camera)",
+    )
     samples_per_epoch: int | None = setting(
         None, "training frames drawn per epoch (unset: the whole train split)"
     )
