@@ -380,13 +380,14 @@ def test_holding_target_joins_the_truth_box_to_the_region():
 
 
 def test_whole_target_items_hold_the_parts_no_return_reached(tmp_path):
-    """Returns on the left half of the spacecraft only (a LIDAR narrower than the camera):
-    the pipeline's crop cuts the right wing away; a whole-target item keeps all of it."""
+    """Returns on the left half of the spacecraft only (the right half dark, its returns
+    lost): the pipeline's crop cuts the right wing away; a whole-target item keeps all of it."""
     root = write_dataset(tmp_path / "data", {"train": 1}, size=256)
     store = SampleStore(root)
     sample = store.load(store.records[0])
     K = PAPER_CAMERA.intrinsics().scaled(256, 256)
     sample.sparse[:, 128:] = 0
+    sample.gray[:, 128:] = np.minimum(sample.gray[:, 128:], 30)
     sample.meta["intrinsics"] = K.as_dict()
     write_sample(root / store.records[0]["file"], sample)
     covered = {}

@@ -6,11 +6,13 @@ import pytest
 
 from sdcnet.anchoring import MAD_TO_STD, SHRINK
 from sdcnet.pipeline import (
+    FIELD_EDGE_GROWTH,
     MAX_UPSAMPLE,
     WORK_PIXELS,
     Region,
     complete,
     drop_specks,
+    region_around,
     region_of_interest,
     resample_depth,
     resample_sparse,
@@ -42,19 +44,38 @@ def bright_model(calls: list):
 
 
 def test_region_holds_every_return_with_a_margin_of_a_few_spacings():
-    _, sparse = frame()
-    region = region_of_interest(sparse)
+    gray, sparse = frame()
+    region = region_of_interest(gray, sparse)
     rows, cols = np.nonzero(sparse)
     assert region.y0 <= rows.min() - 30 and rows.max() + 30 < region.y1
     assert region.x0 <= cols.min() - 30 and cols.max() + 30 < region.x1
-    assert region.shape[0] < 1024, "cropped, not the whole frame"
-    _, dense = frame(spacing=(2, 2))
-    assert region_of_interest(dense).shape[0] < region.shape[0], "denser returns, less margin"
-    empty = region_of_interest(np.zeros((100, 80), np.float32))
-    assert empty.shape == (100, 80)
+    spacing = return_spacing(rows, cols)
+    assert region == region_around(rows, cols, sparse.shape, spacing), "black sky past the edges"
+    gray, dense = frame(spacing=(2, 2))
+    assert region_of_interest(gray, dense).shape[0] < region.shape[0], "denser, less margin"
+    empty = np.zeros((100, 80), np.uint8), np.zeros((100, 80), np.float32)
+    assert region_of_interest(*empty).shape == (100, 80)
     lone = np.zeros((1000, 1000), np.float32)
     lone[500, 500] = 50.0  # one return cannot tell the spacecraft's size: a wide margin
-    assert region_of_interest(lone).shape == (301, 301)
+    assert region_of_interest(np.zeros(lone.shape, np.uint8), lone).shape == (301, 301)
+
+
+def test_the_region_grows_past_the_edge_of_a_lidar_field_narrower_than_the_camera():
+    """A flash array over the left part of a panel: its returns stop along a straight line with
+    the panel going on in the image; the crop grows on that side only, in proportion to the
+    returns' width."""
+    gray, sparse = frame(box=(400, 600, 200, 800))
+    plain = region_of_interest(gray, sparse)
+    sparse[:, 400:] = 0  # the LIDAR's field ends at column 400
+    cut = region_of_interest(gray, sparse)
+    cols = np.nonzero(sparse)[1]
+    width = cols.max() + 1 - cols.min()
+    gray_dark = gray.copy()
+    gray_dark[:, 400:] = 0  # the same returns, the image black past them: the panel ends there
+    ended = region_of_interest(gray_dark, sparse)
+    assert (cut.y0, cut.y1, cut.x0) == (ended.y0, ended.y1, ended.x0)
+    assert cut.x1 == pytest.approx(ended.x1 + FIELD_EDGE_GROWTH * width, abs=1)
+    assert cut.x1 >= 600 and plain.x1 >= 800, "the cut panel's crop reaches past the field"
 
 
 def test_complete_runs_on_the_crop_and_pastes_back():

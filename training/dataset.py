@@ -121,7 +121,7 @@ class TileDataset(Dataset):
         fx = float(sample.meta["intrinsics"]["fx"])
         region = None
         if self.whole_target_share and rng.random() < self.whole_target_share:
-            region = holding_target(region_of_interest(sample.sparse), sample.depth)
+            region = holding_target(region_of_interest(sample.gray, sample.sparse), sample.depth)
         inputs = working_inputs(sample.gray, sample.sparse, fx, self.stride, budget, region)
         rows, cols = inputs.grid.region.slices
         depth = resample_truth(sample.depth[rows, cols], inputs.grid.shape)
