@@ -200,10 +200,10 @@ def past_field_edges(
     threshold = FIELD_EDGE_BRIGHTNESS * float(np.median(gray[rows, cols]))
     near, far = round(spacing), max(round(FIELD_EDGE_BAND_SPACINGS * spacing), round(spacing) + 2)
 
-    def cut(near: np.ndarray, along: np.ndarray, length: int, beyond: np.ndarray) -> bool:
+    def cut(at_side: np.ndarray, along: np.ndarray, length: int, beyond: np.ndarray) -> bool:
         return (
             beyond.size > 0
-            and _covered(along[near], spacing, length) > FIELD_EDGE_COVER
+            and _covered(along[at_side], spacing, length) > FIELD_EDGE_COVER
             and float(beyond.mean()) > threshold
         )
 

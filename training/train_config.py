@@ -55,7 +55,7 @@ class TrainConfig:
     whole_target_share: float = setting(
         0.0,
         "share of training items cropped to hold the whole spacecraft, not only its returns' "
-        "region: teaches the mask the parts no return reached (a LIDAR narrower than the camera)",
+        "region: shows the network the parts no return reached (a LIDAR narrower than the camera)",
     )
     samples_per_epoch: int | None = setting(
         None, "training frames drawn per epoch (unset: the whole train split)"
