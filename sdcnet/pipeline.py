@@ -339,6 +339,51 @@ def resample_depth(depth: np.ndarray, shape: tuple[int, int], footprint_m: float
     return linear
 
 
+#: A crop the working grid shrank gets its outline back from the frame's own gray image: the
+#: probability is pasted back through a fast guided filter (He and Sun, 2015) whose windows are
+#: this many working pixels from their centre ...
+GUIDE_RADIUS = 4
+#: ... and whose regularisation is this variance of the guide (the gray image scaled to 0.5
+#: at the returns' median, so that an 8-bit, a 12-bit and a dim frame are guided alike).
+GUIDE_EPS = 1e-3
+
+
+def guided_probability(
+    prob: np.ndarray, gray: np.ndarray, sparse: np.ndarray, gray_crop: np.ndarray
+) -> np.ndarray:
+    """The working grid's foreground probability (``prob`` (h, w), beside its ``gray`` in
+    [0, 1] and ``sparse`` metres) on the crop's own grid (``gray_crop``: the frame's pixels,
+    uint8 or uint16, (H, W)), its outline drawn where the crop's gray image has it.
+
+    Each working pixel's probability is fit as a linear function of the gray image over its
+    window (``GUIDE_RADIUS``, ``GUIDE_EPS``); the fit's coefficients, averaged and resampled
+    to the crop, apply to the crop's own gray values. Where the gray image is flat (inside
+    the spacecraft, the black sky) this is the resampled probability; across an outline the
+    edge moves to where the image has it, to the frame's pixel, which the shrunk grid lost.
+    On the robustness suite this bought 0.2-2.0 points of IOU per condition for about 3 ms a
+    frame at the median (docs/development.md, "Measurements")."""
+    returns = sparse > 0
+    reference = float(np.median(gray[returns])) if returns.any() else 0.5
+    gain = np.float32(0.5 / max(reference, 1e-3))
+    guide = gray * gain
+    size = (2 * GUIDE_RADIUS + 1, 2 * GUIDE_RADIUS + 1)
+
+    def mean(x: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(x, -1, size)
+
+    mean_guide, mean_prob = mean(guide), mean(prob)
+    variance = mean(guide * guide) - mean_guide * mean_guide
+    slope = (mean(guide * prob) - mean_guide * mean_prob) / (variance + np.float32(GUIDE_EPS))
+    offset = mean_prob - slope * mean_guide
+    shape = gray_crop.shape
+    full_scale = float(gain) / float(np.iinfo(gray_crop.dtype).max)
+    out = cv2.multiply(
+        resample_image(mean(slope), shape), gray_crop, dtype=cv2.CV_32F, scale=full_scale
+    )
+    out += resample_image(mean(offset), shape)
+    return np.clip(out, 0.0, 1.0, out=out)
+
+
 @dataclass
 class Completion:
     """The answer on the spacecraft's crop (``grid.region``): depth in metres (0 off the mask),
@@ -486,7 +531,10 @@ def complete(
     )
     returns = inputs.sparse[rows, cols]
     footprint = float(returns.mean()) / inputs.focal_px if returns.size else 1.0
-    prob_crop = resample_image(prob_w, grid.region.shape)
+    if grid.scale[0] < 1.0:
+        prob_crop = guided_probability(prob_w, inputs.gray, inputs.sparse, gray[grid.region.slices])
+    else:
+        prob_crop = resample_image(prob_w, grid.region.shape)
     depth_crop = resample_depth(anchored.depth, grid.region.shape, footprint)
     mask_crop = kept if grid.identity else prob_crop > threshold
     # Off the mask the answer is 0. A resampled crop is a new array, set in place (a 2048 x

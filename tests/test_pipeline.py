@@ -12,9 +12,11 @@ from sdcnet.pipeline import (
     Region,
     complete,
     drop_specks,
+    guided_probability,
     region_around,
     region_of_interest,
     resample_depth,
+    resample_image,
     resample_sparse,
     return_spacing,
     row_ends,
@@ -222,3 +224,39 @@ def test_bad_focal_lengths_and_sizes_are_refused():
             complete(bright_model([]), gray, sparse, focal, stride=64)
     with pytest.raises(ValueError, match="differ"):
         complete(bright_model([]), gray, sparse[:-1], FX, stride=64)
+
+
+def outline_case(dtype=np.uint8):
+    """A bright panel with edges between the working grid's pixels, and a network's outline
+    4 frame pixels too far out, on a grid shrunk to 0.4 (area-averaged), returns on it."""
+    mask = np.zeros((500, 500), bool)
+    mask[101:373, 57:311] = True
+    top = np.iinfo(dtype).max
+    gray = np.where(mask, int(0.8 * top), int(0.02 * top)).astype(dtype)
+    shape = (200, 200)
+    too_far = cv2.dilate(mask.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(np.float32)
+    prob = resample_image(too_far, shape)
+    gray_w = resample_image(gray.astype(np.float32) / top, shape)
+    sparse_w = np.zeros(shape, np.float32)
+    sparse_w[50:140:5, 30:120:5] = 80.0
+    return mask, gray, prob, gray_w, sparse_w
+
+
+def iou_of(answer: np.ndarray, mask: np.ndarray) -> float:
+    return float(((answer > 0.5) & mask).sum() / ((answer > 0.5) | mask).sum())
+
+
+def test_the_guided_paste_back_puts_the_outline_where_the_image_has_it():
+    mask, gray, prob, gray_w, sparse_w = outline_case()
+    guided = guided_probability(prob, gray_w, sparse_w, gray)
+    assert iou_of(resample_image(prob, mask.shape), mask) < 0.96
+    assert iou_of(guided, mask) > 0.995
+    _, gray16, *inputs16 = outline_case(np.uint16)  # a 16-bit frame is guided alike
+    np.testing.assert_allclose(guided_probability(*inputs16, gray16), guided, atol=1e-3)
+
+
+def test_the_guided_paste_back_keeps_the_networks_outline_where_the_image_is_flat():
+    _, _, prob, gray_w, sparse_w = outline_case()
+    flat = np.full((500, 500), 120, np.uint8)
+    guided = guided_probability(prob, np.full_like(gray_w, 120 / 255), sparse_w, flat)
+    assert iou_of(guided, resample_image(prob, flat.shape) > 0.5) > 0.99
