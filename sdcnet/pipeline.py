@@ -15,7 +15,8 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    in units of the pixel footprint;
 4. **anchor** the depth to the returns it should agree with (``sdcnet.anchoring``);
 5. **paste back** at the frame's resolution: stars and noise dropped (``drop_specks``),
-   the probability resampled and thresholded, the depth resampled without blending across
+   the probability resampled (onto a shrunk crop guided by the frame's own gray image:
+   ``guided_probability``) and thresholded, the depth resampled without blending across
    depth edges (``resample_depth``). Outside the crop the answer is background.
 
 The model is any callable ``(gray, sparse, focal_px) -> (depth, probability[, sigma])`` on
