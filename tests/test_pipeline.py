@@ -260,3 +260,17 @@ def test_the_guided_paste_back_keeps_the_networks_outline_where_the_image_is_fla
     flat = np.full((500, 500), 120, np.uint8)
     guided = guided_probability(prob, np.full_like(gray_w, 120 / 255), sparse_w, flat)
     assert iou_of(guided, resample_image(prob, flat.shape) > 0.5) > 0.99
+
+
+def test_a_shrunk_crop_gets_its_outline_from_the_image_and_no_star_beside_it():
+    """A 2048 px frame whose panel's crop the budget shrinks: the pasted-back mask follows the
+    image's outline to the frame's pixel, and a star 3 px off the outline, which the image
+    would guide into the mask, is left out (no return on it)."""
+    gray, sparse = frame(size=2048, spacing=(9, 9), box=(601, 1399, 503, 1497))
+    gray[1402, 900] = 255  # a star beside the panel's bottom edge
+    result = complete(bright_model([]), gray, sparse, FX, stride=64)
+    assert result.grid.scale[0] < 0.6
+    truth = gray == 200
+    iou = (result.mask & truth).sum() / (result.mask | truth).sum()
+    assert iou > 0.999 and not result.mask[1402, 900]
+    assert np.array_equal(result.probability > 0.5, result.mask)
