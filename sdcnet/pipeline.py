@@ -384,7 +384,8 @@ def guided_probability(
         resample_image(mean(slope), shape), gray_crop, dtype=cv2.CV_32F, scale=full_scale
     )
     out += resample_image(mean(offset), shape)
-    return np.clip(out, 0.0, 1.0, out=out)
+    cv2.threshold(out, 1.0, 1.0, cv2.THRESH_TRUNC, dst=out)  # clipped to [0, 1] in place
+    return cv2.max(out, 0.0, dst=out)
 
 
 @dataclass
