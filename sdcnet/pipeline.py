@@ -189,7 +189,7 @@ def past_field_edges(
     ``spacing`` pixels apart) stop along a straight line (``FIELD_EDGE_COVER``) with the
     image bright beyond it (``FIELD_EDGE_BRIGHTNESS``). A flash array's field is often a
     fraction of the camera's; the mask must still hold the parts it did not reach. On the
-    robustness suite this bought 0.7-0.8 points of IOU where the LIDAR's field is narrower
+    robustness suite this bought 0.2-0.8 points of IOU where the LIDAR's field is narrower
     than the camera's and changed no frame of the paper's LIDAR (docs/development.md,
     "Measurements"); the cost per frame stays the budget's, a larger crop being seen at a
     coarser scale."""
@@ -363,8 +363,8 @@ def guided_probability(
     edge moves to where the image has it, to the frame's pixel, which the shrunk grid lost;
     but a star or a noisy pixel beside the outline can cross the threshold too, so the mask is
     vouched for again by the returns at the frame's resolution (``complete``). Both bought
-    0.4-1.9 points of IOU per condition of the robustness suite and took the false specks to
-    none or fewer (docs/development.md, "Measurements")."""
+    0.2-1.9 points of IOU per condition of the robustness suite, with 0.3 false specks per
+    frame or fewer (docs/development.md, "Measurements")."""
     returns = sparse > 0
     reference = float(np.median(gray[returns])) if returns.any() else 0.5
     gain = np.float32(0.5 / max(reference, 1e-3))
