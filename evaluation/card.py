@@ -53,6 +53,7 @@ def _recipe(configs: list[dict]) -> str:
         "variant",
         "fsnet_inputs",
         "fsnet_growth",
+        "fsnet_context",
         "fsnet_epochs",
         "epochs",
         "batch_size",

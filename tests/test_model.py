@@ -281,6 +281,47 @@ def test_a_widened_fsnet_starts_as_the_narrow_one_and_its_new_channels_learn():
     assert (wide.fsnet.head.weight[:, old_rows:] != 0).any()
 
 
+def test_fsnets_context_branch_starts_at_nothing_and_sees_past_the_narrow_reach():
+    """``fsnet_context``: warm-started from a model without it, the same mask at first (its
+    last convolution starts at zero); trained, a change 88 input pixels away moves a pixel's
+    logit, which the narrow network's receptive field does not reach."""
+    torch.manual_seed(0)
+    plain = build_model("sdcnet", fsnet_growth=2).eval()
+    wide_view = build_model("sdcnet", fsnet_growth=2, fsnet_context=True).eval()
+    report = transplant_weights(wide_view, plain.state_dict())
+    assert all(n.startswith("fsnet.context.") for n in report["left"]) and report["left"]
+    gray, sparse = torch.rand(1, 1, 256, 256), lidar_like(1, 256, 256)
+    with torch.no_grad():
+        torch.testing.assert_close(
+            plain.segment(gray, sparse, FOCAL), wide_view.segment(gray, sparse, FOCAL)
+        )
+        for layer in wide_view.fsnet.context.modules():  # a trained-like branch
+            if isinstance(layer, torch.nn.Conv2d):
+                torch.nn.init.normal_(layer.weight, std=0.5)
+
+    def moved(model: SDCNet) -> float:
+        x = model_input(model, gray, sparse)  # FSNet's grid: half the input's
+        far = x.clone()
+        far[..., 64:84, 64:84] += 1.0  # 44+ FSNet pixels from the one watched, (20, 20)
+        with torch.no_grad():
+            return float((model.fsnet(x) - model.fsnet(far))[..., 20, 20].abs().max())
+
+    assert moved(plain) == 0.0
+    assert moved(wide_view) > 1e-4
+
+
+def model_input(model: SDCNet, gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
+    """FSNet's input tensor for ``gray`` and ``sparse`` (what ``SDCNet._segment`` builds)."""
+    captured = []
+    hook = model.fsnet.register_forward_pre_hook(lambda _, args: captured.append(args[0]))
+    try:
+        with torch.no_grad():
+            model.segment(gray, sparse, FOCAL)
+    finally:
+        hook.remove()
+    return captured[0]
+
+
 def _trained_like(seed: int = 0) -> SDCNet:
     """SDCNet with random weights everywhere, its residual head included (a fresh one starts
     at zero and would hide what the network does with its inputs)."""

@@ -195,6 +195,25 @@ def test_a_calibrated_wide_model_fine_tunes_with_its_own_flags_and_calibration(
     assert (tuned.config.sigma_per_scale, tuned.config.sigma_edge_weight) == (0.4, 0.3)
 
 
+def test_a_warm_start_that_keeps_the_depth_networks_keeps_their_sigma_calibration(
+    run, tiny_dataset, tmp_path
+):
+    """``--warm-start`` into an FSNet with the context branch (``--fsnet-context``, a switch):
+    FDCNet's weights come over whole, so sigma's calibration comes with them; ``--no-fsnet-
+    context`` builds the plain network."""
+    source, _ = load_checkpoint(run / "best.pt")
+    save_checkpoint(tmp_path / "calibrated.pt", with_sigma(source, 0.4, 0.3))
+    fit = ["fit", "--data", str(tiny_dataset), "--preset", "smoke", "--epochs", "0"]
+    fit += ["--warm-start", str(tmp_path / "calibrated.pt")]
+    assert train_main([*fit, "--out", str(tmp_path / "ctx"), "--fsnet-context"]) == 0
+    tuned, _ = load_checkpoint(tmp_path / "ctx" / "best_stage1.pt")
+    assert tuned.config.fsnet_context and tuned.fsnet.context is not None
+    assert (tuned.config.sigma_per_scale, tuned.config.sigma_edge_weight) == (0.4, 0.3)
+    assert train_main([*fit, "--out", str(tmp_path / "plain"), "--no-fsnet-context"]) == 0
+    plain, _ = load_checkpoint(tmp_path / "plain" / "best_stage1.pt")
+    assert not plain.config.fsnet_context and plain.fsnet.context is None
+
+
 def test_segmentation_only_evaluation_reports_the_mask_alone(run, tiny_dataset, tmp_path, capsys):
     report = tmp_path / "seg.json"
     args = ["evaluate", "--data", str(tiny_dataset), "--split", "test", "--out", str(report)]

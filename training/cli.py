@@ -30,10 +30,12 @@ def add_config_flags(parser: argparse.ArgumentParser) -> None:
     hints = get_type_hints(TrainConfig)
     for f in flag_fields():
         kind = next(k for k in (*get_args(hints[f.name]), hints[f.name]) if k is not type(None))
+        # a switch is --name / --no-name (argparse's bool("False") would be True)
+        how = {"action": argparse.BooleanOptionalAction} if kind is bool else {"type": kind}
         parser.add_argument(
             "--" + f.name.replace("_", "-"),
             dest=f.name,
-            type=kind,
+            **how,
             required=f.default is MISSING and f.default_factory is MISSING,
             **{k: v for k, v in f.metadata.items() if k in ("help", "choices")},
         )

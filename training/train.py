@@ -13,7 +13,7 @@ import json
 import os
 import platform
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -150,7 +150,10 @@ class Trainer:
         if config.val_samples:
             self.val_records = evenly_spread(self.val_records, config.val_samples)
         self.model = build_model(
-            config.variant, fsnet_inputs=config.fsnet_inputs, fsnet_growth=config.fsnet_growth
+            config.variant,
+            fsnet_inputs=config.fsnet_inputs,
+            fsnet_growth=config.fsnet_growth,
+            fsnet_context=config.fsnet_context,
         ).to(self.device)
         self.train_set = TileDataset(
             self.store,
@@ -376,6 +379,15 @@ class Trainer:
         report = transplant_weights(self.model, self._warm_checkpoint["model"])
         if not report["copied"]:
             raise ValueError(f"{self.config.warm_start}: no weight fits this architecture")
+        depth_weights = [n for n in self.model.state_dict() if n.startswith("fdcnet.")]
+        if set(depth_weights) <= set(report["copied"]):
+            # the depth networks are the source's whole, so is their sigma's calibration
+            theirs, ours = self._warm_checkpoint["model_config"], self.model.config
+            self.model.config = replace(
+                ours,
+                sigma_per_scale=theirs.get("sigma_per_scale", ours.sigma_per_scale),
+                sigma_edge_weight=theirs.get("sigma_edge_weight", ours.sigma_edge_weight),
+            )
         if self.is_main:
             print(
                 f"warm start from {self.config.warm_start}: {len(report['copied'])} tensors "

@@ -31,6 +31,11 @@ class TrainConfig:
     fsnet_growth: int = setting(
         1, "FSNet's widths x this (1: the paper's ~5k parameters; 2: four times as many)"
     )
+    fsnet_context: bool = setting(
+        False,
+        "FSNet's coarse branch: three convolutions at a sixteenth of the working grid that see "
+        "most of the crop at once (parts of the spacecraft far from any return)",
+    )
     fsnet_epochs: int = setting(
         30, "epochs of stage 1 (FSNet alone); 0 skips it, from --init-weights"
     )

@@ -6,6 +6,14 @@ and still answers at full resolution, without any full-resolution convolution: t
 enters as a space-to-depth stack (each 2 x 2 block of pixels as 4 channels) and the head
 predicts the 4 sub-pixel logits of each block, put back in place by depth-to-space. Edges seen
 in the full-resolution gray image thus reach the mask at the cost of half-resolution work.
+
+With ``context``, three more convolutions at an eighth of FSNet's resolution (a sixteenth of
+the working grid: 32 x 32 for 512 x 512) see most of the crop at once and add what they see to
+the bottleneck: an output pixel's receptive field grows from 69 to 185 FSNet pixels across
+(138 to 370 working pixels; where its input gradient is not zero). With a LIDAR narrower than
+the camera, most of the mask the narrow network misses lies inside the crop on parts of the
+spacecraft far from any return (docs/development.md, "Measurements"). The branch's last
+convolution starts at zero: added to a trained FSNet, it changes nothing until trained.
 """
 
 from __future__ import annotations
@@ -21,10 +29,13 @@ WIDTHS = (6, 8, 12, 8, 6)
 
 
 class FSNet(nn.Module):
-    """(B, Cin, h, w) -> logits (B, Cout, h, w); h, w multiples of 4. ``growth`` multiplies
-    every width (parameters grow as its square)."""
+    """(B, Cin, h, w) -> logits (B, Cout, h, w); h, w multiples of 4 (8 with ``context``).
+    ``growth`` multiplies every width (parameters grow as its square); ``context`` adds the
+    coarse branch (module docstring)."""
 
-    def __init__(self, *, in_channels: int, out_channels: int = 1, growth: int = 1):
+    def __init__(
+        self, *, in_channels: int, out_channels: int = 1, growth: int = 1, context: bool = False
+    ):
         super().__init__()
         c1, c2, c3, c4, c5 = (growth * c for c in WIDTHS)
         self.enc1 = ConvBNReLU(in_channels, c1)
@@ -35,6 +46,19 @@ class FSNet(nn.Module):
         self.dec2 = ConvBNReLU(c4 + c2, c4)
         self.dec1 = ConvBNReLU(c4 + c1, c5)
         self.head = nn.Conv2d(c5, out_channels, 1)
+        self.context = (
+            nn.Sequential(
+                ConvBNReLU(c4, c3, stride=2),
+                ConvBNReLU(c3, c3, dilation=2),
+                ConvBNReLU(c3, c3, dilation=4),
+                nn.Conv2d(c3, c4, 1),
+            )
+            if context
+            else None
+        )
+        if self.context is not None:
+            nn.init.zeros_(self.context[-1].weight)
+            nn.init.zeros_(self.context[-1].bias)
         # each layer's input channels as the parts concatenated into it, in order
         self.input_parts = {
             "enc1": (in_channels,),
@@ -76,6 +100,8 @@ class FSNet(nn.Module):
         e1 = self.enc1(x)
         e2 = self.enc2(e1)
         m = self.mid2(self.mid1(self.enc3(e2)))
+        if self.context is not None:
+            m = m + upsample_to(self.context(m), m)
         d2 = self.dec2(torch.cat([upsample_to(m, e2), e2], 1))
         d1 = self.dec1(torch.cat([upsample_to(d2, e1), e1], 1))
         return self.head(d1)

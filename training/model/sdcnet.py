@@ -66,6 +66,7 @@ class ModelConfig:
     use_fsnet: bool = True  # False: the baseline regresses depth everywhere, no segmentation
     fsnet_inputs: str = "both"  # Table 4: "both", "gray", "sparse"
     fsnet_growth: int = 1  # FSNet's widths x this (1: the paper's ~5k parameters)
+    fsnet_context: bool = False  # FSNet's coarse branch, which sees most of the crop at once
     grid: int = 4  # CCA regions per side: M = grid^2 regions whatever the input size
     heads: int = 4
     input_span_px: float = 256.0  # depth inputs: units of the metres this many pixels span
@@ -169,7 +170,12 @@ class SDCNet(nn.Module):
         blocks = config.seg_factor**2  # full-resolution pixels per FSNet pixel
         fs_channels = {"both": blocks + 3, "gray": blocks, "sparse": 3}[config.fsnet_inputs]
         self.fsnet = (
-            FSNet(in_channels=fs_channels, out_channels=blocks, growth=config.fsnet_growth)
+            FSNet(
+                in_channels=fs_channels,
+                out_channels=blocks,
+                growth=config.fsnet_growth,
+                context=config.fsnet_context,
+            )
             if config.use_fsnet
             else None
         )
