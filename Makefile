@@ -84,8 +84,10 @@ docker-check: $(STAMP)
 ## head alone, then with the depth-edge term. The fourth model (shipped) widens that FSNet
 ## (--fsnet-growth 2) and trains it 25 epochs in three runs on views 0-11 of the same world,
 ## the depth networks kept; then its sigma is calibrated again the same way. The fifth model
-## (shipped) fine-tunes that FSNet 14 more epochs in two runs on 99 models none of the others
-## saw (data/mixed-s1, seed 1), its depth networks and sigma the fourth's.
+## fine-tunes that FSNet 14 more epochs in two runs on 99 models none of the others
+## saw (data/mixed-s1, seed 1), its depth networks and sigma the fourth's. The sixth (shipped)
+## adds FSNet's coarse context branch (--fsnet-context) and trains FSNet 12 epochs on 99 new
+## models again (data/mixed-s2, seed 2; 13 min), its depth networks and sigma the fifth's.
 .PHONY: model
 PRESET ?= cpu
 PREVIOUS ?= e6a386e
@@ -99,6 +101,9 @@ FIT12 := $(VENV)/bin/sdc-train fit --data data/mixed-v12 --preset $(PRESET) --io
 # the fifth model: that FSNet fine-tuned on new models of the same world
 FITS1 := $(VENV)/bin/sdc-train fit --data data/mixed-s1 --preset $(PRESET) --iou-loss 1 \
 	--iou-over tile --fsnet-growth 2 --epochs 0
+# the sixth model: that FSNet with its coarse context branch, trained on new models again
+FITS2 := $(VENV)/bin/sdc-train fit --data data/mixed-s2 --preset $(PRESET) --iou-loss 1 \
+	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
@@ -130,7 +135,12 @@ model: $(STAMP)
 		--workers 2
 	$(VENV)/bin/sdc-train ship --checkpoint runs/v5/best_stage1.pt --out runs/v5/shipped.pt
 	$(FITS1) --out runs/v6 --init-weights runs/v5/shipped.pt --fsnet-epochs 8 --lr 2e-4 --seed 7
-	$(VENV)/bin/sdc-train ship --checkpoint runs/v6/best_stage1.pt --out models/sdcnet.pt
+	$(VENV)/bin/sdc-train ship --checkpoint runs/v6/best_stage1.pt --out runs/v6/shipped.pt
+	$(VENV)/bin/sdc-data generate --out data/mixed-s2 --models 126 --views 8 --world mixed \
+		--seed 2 --only-splits train val
+	$(FITS2) --out runs/v8 --warm-start runs/v6/shipped.pt --fsnet-epochs 12 --lr 5e-4 --seed 8 \
+		--workers 1
+	$(VENV)/bin/sdc-train ship --checkpoint runs/v8/best_stage1.pt --out models/sdcnet.pt
 	$(MAKE) reports
 
 ## reports: evaluate the shipped checkpoint beside the previous model (git $(PREVIOUS), run by its
