@@ -28,10 +28,24 @@ from sdcnet.training.model.blocks import ConvBNReLU, upsample_to
 WIDTHS = (6, 8, 12, 8, 6)
 
 
+def context_branch(channels: int, width: int) -> nn.Sequential:
+    """(B, channels, h, w) -> (B, channels, h/2, w/2): the coarse branch (module docstring),
+    its last convolution at zero."""
+    branch = nn.Sequential(
+        ConvBNReLU(channels, width, stride=2),
+        ConvBNReLU(width, width, dilation=2),
+        ConvBNReLU(width, width, dilation=4),
+        nn.Conv2d(width, channels, 1),
+    )
+    nn.init.zeros_(branch[-1].weight)
+    nn.init.zeros_(branch[-1].bias)
+    return branch
+
+
 class FSNet(nn.Module):
-    """(B, Cin, h, w) -> logits (B, Cout, h, w); h, w multiples of 4 (8 with ``context``).
-    ``growth`` multiplies every width (parameters grow as its square); ``context`` adds the
-    coarse branch (module docstring)."""
+    """(B, Cin, h, w) -> logits (B, Cout, h, w); h, w multiples of 4. ``growth`` multiplies
+    every width (parameters grow as its square); ``context`` adds the coarse branch (module
+    docstring)."""
 
     def __init__(
         self, *, in_channels: int, out_channels: int = 1, growth: int = 1, context: bool = False
@@ -46,19 +60,7 @@ class FSNet(nn.Module):
         self.dec2 = ConvBNReLU(c4 + c2, c4)
         self.dec1 = ConvBNReLU(c4 + c1, c5)
         self.head = nn.Conv2d(c5, out_channels, 1)
-        self.context = (
-            nn.Sequential(
-                ConvBNReLU(c4, c3, stride=2),
-                ConvBNReLU(c3, c3, dilation=2),
-                ConvBNReLU(c3, c3, dilation=4),
-                nn.Conv2d(c3, c4, 1),
-            )
-            if context
-            else None
-        )
-        if self.context is not None:
-            nn.init.zeros_(self.context[-1].weight)
-            nn.init.zeros_(self.context[-1].bias)
+        self.context = context_branch(c4, c3) if context else None
         # each layer's input channels as the parts concatenated into it, in order
         self.input_parts = {
             "enc1": (in_channels,),
