@@ -6,7 +6,7 @@ convert exactly both ways:
 
 - rows and columns are integer pixel indices (0-based, row down, column right), stored as
   float32 so that one array holds a return (exact up to 2^24 pixels);
-- Z is the camera-frame depth in metres, finite and > 0;
+- Z is the camera-frame depth in metres, finite, > 0 and at most ``MAX_DEPTH_M``;
 - several returns on one pixel: the nearest (smallest Z) wins it, as
   ``sdcnet.pipeline.resample_sparse`` decides when it moves returns to a coarser grid.
 
@@ -23,6 +23,10 @@ from pathlib import Path
 import numpy as np
 
 CSV_HEADER = ("row", "col", "z_m")
+#: The farthest depth accepted, metres: far beyond any proximity LIDAR's range. A larger value
+#: is damage (a flipped bit in a float32 gives 1e30 and more), and its square would overflow
+#: the float32 arithmetic of the uncertainty.
+MAX_DEPTH_M = 1e5
 
 
 class ReturnsError(ValueError):
@@ -83,6 +87,11 @@ def check_returns(returns: np.ndarray, shape: tuple[int, int] | None = None) -> 
     if (z <= 0).any():
         k = _first(z <= 0)
         raise ReturnsError("invalid_depth", f"z_m must be > 0 (metres); return {k} has {z[k]}")
+    if (z > MAX_DEPTH_M).any():
+        k = _first(z > MAX_DEPTH_M)
+        raise ReturnsError(
+            "invalid_depth", f"z_m must be <= {MAX_DEPTH_M:.0f} m; return {k} has {z[k]:.3g}"
+        )
     pixels = returns[:, :2]
     bad = (pixels != np.round(pixels)) | (pixels < 0)
     if bad.any():
@@ -111,23 +120,30 @@ def dense_from_returns(returns: np.ndarray, shape: tuple[int, int]) -> np.ndarra
     return scatter_nearest(rows, cols, returns[:, 2], shape)
 
 
+def check_dense_depths(sparse: np.ndarray) -> None:
+    """A dense map's depths (metres, 0 = no return): finite, >= 0 and at most
+    ``MAX_DEPTH_M``, else ``ReturnsError`` ("invalid_depth") saying how many are not."""
+    problems = (
+        (~np.isfinite(sparse), "NaN or infinite values"),
+        (sparse < 0, "negative depths: metres >= 0, 0 = no return"),
+        (sparse > MAX_DEPTH_M, f"depths beyond {MAX_DEPTH_M:.0f} m"),
+    )
+    for bad, what in problems:
+        if bad.any():
+            raise ReturnsError(
+                "invalid_depth", f"the sparse map has {int(np.count_nonzero(bad))} {what}"
+            )
+
+
 def returns_from_dense(sparse: np.ndarray) -> np.ndarray:
     """The returns of a dense map (H, W, metres, 0 = no return) as float32 (N, 3), in
     row-major order; ``dense_from_returns(returns, sparse.shape)`` gives the map back exactly
-    (as float32). Raises ``ReturnsError`` for NaN, infinite or negative depths."""
+    (as float32). Raises ``ReturnsError`` for depths ``check_dense_depths`` refuses."""
     if sparse.ndim != 2 or sparse.dtype.kind != "f":
         raise ReturnsError(
             "wrong_shape", f"a dense map is a float (H, W) array, got {sparse.dtype} {sparse.shape}"
         )
-    if not np.isfinite(sparse).all():
-        bad = int(np.count_nonzero(~np.isfinite(sparse)))
-        raise ReturnsError("invalid_depth", f"the sparse map has {bad} NaN or infinite values")
-    if (sparse < 0).any():
-        raise ReturnsError(
-            "invalid_depth",
-            f"the sparse map has {int(np.count_nonzero(sparse < 0))} negative depths: metres "
-            ">= 0, 0 = no return",
-        )
+    check_dense_depths(sparse)
     rows, cols = np.nonzero(sparse)
     returns = np.empty((len(rows), 3), np.float32)
     returns[:, 0] = rows

@@ -27,7 +27,7 @@ from sdcnet.formats import FormatError, InputFormat, Reading
 from sdcnet.formats.image_header import ImageHeader, check_decoding_work, read_header
 from sdcnet.formats.sparse import FORMATS, described, sparse_format
 from sdcnet.pipeline import to_gray
-from sdcnet.returns import ReturnsError, dense_from_returns
+from sdcnet.returns import ReturnsError, check_dense_depths, dense_from_returns
 from sdcnet.service.errors import ApiError, format_error
 from sdcnet.service.schemas import ResponseFormat
 
@@ -300,17 +300,11 @@ def sparse_from_returns(returns: np.ndarray, shape: tuple[int, int]) -> np.ndarr
 
 
 def check_depths(sparse: np.ndarray) -> None:
-    """A dense map's depths: finite, >= 0, at least one return."""
-    if not np.isfinite(sparse).all():
-        bad = int(np.count_nonzero(~np.isfinite(sparse)))
-        raise ApiError(422, "invalid_depth", f"sparse has {bad} NaN or infinite values")
-    if (sparse < 0).any():
-        raise ApiError(
-            422,
-            "invalid_depth",
-            f"sparse has {int(np.count_nonzero(sparse < 0))} negative depths: metres >= 0, "
-            "0 = no return",
-        )
+    """A dense map's depths: those ``check_dense_depths`` accepts, at least one return."""
+    try:
+        check_dense_depths(sparse)
+    except ReturnsError as exc:
+        raise ApiError(422, exc.code, str(exc)) from None
     if not sparse.any():
         raise ApiError(
             422, "no_returns", "sparse has no LIDAR return (all zero): nothing to complete from"

@@ -136,6 +136,7 @@ def test_csv_round_trips_the_same_float32_values(tmp_path):
         (np.array([[1, np.inf, 5]], np.float32), "invalid_depth", "finite numbers; return 0"),
         (np.array([[1, 1, 5], [1, 1, 0]], np.float32), "invalid_depth", "return 1 has 0.0"),
         (np.array([[1, 1, -3]], np.float32), "invalid_depth", "z_m must be > 0"),
+        (np.array([[1, 1, 3], [2, 2, 1e30]], np.float32), "invalid_depth", "return 1 has 1e+30"),
         (np.array([[1.5, 1, 3]], np.float32), "invalid_returns", "(whole, >= 0); return 0"),
         (np.array([[-1, 1, 3]], np.float32), "invalid_returns", "(whole, >= 0); return 0"),
         (np.array([[8, 1, 3]], np.float32), "invalid_returns", "outside the 8 x 8 image"),
@@ -173,6 +174,9 @@ def test_a_dense_map_with_bad_depths_is_refused():
         returns_from_dense(sparse)
     sparse[1, 1] = -2
     with pytest.raises(ReturnsError, match="negative"):
+        returns_from_dense(sparse)
+    sparse[1, 1] = 2e5
+    with pytest.raises(ReturnsError, match="1 depths beyond 100000 m"):
         returns_from_dense(sparse)
 
 

@@ -339,8 +339,8 @@ def bad_request(case: str) -> tuple[dict, dict | None, dict]:
     """(files, form fields, query) of one bad request of issue 5's list."""
     s = frame()
     good_png = png_bytes(s.gray)
-    with_nan, with_inf, negative = s.sparse.copy(), s.sparse.copy(), s.sparse.copy()
-    with_nan[5, 5], with_inf[5, 5], negative[5, 5] = np.nan, np.inf, -1.0
+    with_nan, with_inf, negative, far = (s.sparse.copy() for _ in range(4))
+    with_nan[5, 5], with_inf[5, 5], negative[5, 5], far[5, 5] = np.nan, np.inf, -1.0, 1e30
     files = {
         "missing_gray": {"sparse": frame_files()["sparse"]},
         "missing_sparse": {"gray": frame_files()["gray"]},
@@ -359,6 +359,7 @@ def bad_request(case: str) -> tuple[dict, dict | None, dict]:
         "nan_depth": frame_files(sparse=npy_bytes(with_nan)),
         "inf_depth": frame_files(sparse=npy_bytes(with_inf)),
         "negative_depth": frame_files(sparse=npy_bytes(negative)),
+        "far_depth": frame_files(sparse=npy_bytes(far)),
         "no_returns": frame_files(sparse=npy_bytes(np.zeros_like(s.sparse))),
         "too_many_pixels": frame_files(gray=png_bytes(np.zeros((1024, 1025), np.uint8))),
         "npy_too_many_pixels": frame_files(sparse=_huge_npy_header()),
@@ -398,6 +399,7 @@ BAD_INPUTS = {
     "nan_depth": (422, "invalid_depth"),
     "inf_depth": (422, "invalid_depth"),
     "negative_depth": (422, "invalid_depth"),
+    "far_depth": (422, "invalid_depth"),
     "no_returns": (422, "no_returns"),
     "too_many_pixels": (413, "too_large"),
     "npy_too_many_pixels": (413, "too_large"),
