@@ -162,13 +162,17 @@ def region_around(
 
 
 #: A side of the returns' bounding box is the LIDAR field's edge when returns lie within one
-#: spacing of it along more than this share of its length (a straight cut across the
-#: spacecraft: the outline of a spacecraft meets its box in a few points) ...
+#: spacing of it along more than this share of its length, or along at least
+#: ``FIELD_EDGE_RUN_SPACINGS`` return spacings of it (a straight cut across the spacecraft,
+#: which may cross only part of the field: the outline of a spacecraft meets its box in a few
+#: points) ...
 FIELD_EDGE_COVER = 0.7
+FIELD_EDGE_RUN_SPACINGS = 15
 #: ... and the image between one return spacing beyond it (where a spacecraft that ends
-#: there can still reach, between two rows of returns) and this many is brighter, on
-#: average, than this share of the median gray at the returns: the spacecraft goes on past
-#: the field's edge (a straight panel edge against the black sky does not) ...
+#: there can still reach, between two rows of returns) and this many, alongside those
+#: returns, is brighter, on average, than this share of the median gray at the returns: the
+#: spacecraft goes on past the field's edge (a straight panel edge against the black sky
+#: does not) ...
 FIELD_EDGE_BAND_SPACINGS = 3.0
 FIELD_EDGE_BRIGHTNESS = 0.25
 #: ... so the crop grows on that side by this share of the returns' extent across it.
@@ -186,12 +190,13 @@ def past_field_edges(
 ) -> Region:
     """``region`` grown by ``FIELD_EDGE_GROWTH`` of the returns' extent on each side where the
     LIDAR's field ended and the spacecraft did not: the returns (pixel ``rows``, ``cols``,
-    ``spacing`` pixels apart) stop along a straight line (``FIELD_EDGE_COVER``) with the
-    image bright beyond it (``FIELD_EDGE_BRIGHTNESS``). A flash array's field is often a
-    fraction of the camera's; the mask must still hold the parts it did not reach. On the
-    robustness suite this bought 0.2-0.8 points of IOU where the LIDAR's field is narrower
-    than the camera's and changed no frame of the paper's LIDAR (docs/development.md,
-    "Measurements"); the cost per frame stays the budget's, a larger crop being seen at a
+    ``spacing`` pixels apart) stop along a straight line (``FIELD_EDGE_COVER``,
+    ``FIELD_EDGE_RUN_SPACINGS``) with the image bright beyond it (``FIELD_EDGE_BRIGHTNESS``).
+    A flash array's field is often a fraction of the camera's; the mask must still hold the
+    parts it did not reach. On the robustness suite this bought 0.2-0.8 points of IOU where
+    the LIDAR's field is narrower than the camera's and changed no frame of the paper's LIDAR;
+    counting a cut across part of the field too, 1.2 more on flash frames (docs/development.md,
+    "Measurements"). The cost per frame stays the budget's, a larger crop being seen at a
     coarser scale."""
     H, W = gray.shape
     y0, y1, x0, x1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
@@ -201,21 +206,27 @@ def past_field_edges(
     threshold = FIELD_EDGE_BRIGHTNESS * float(np.median(gray[rows, cols]))
     near, far = round(spacing), max(round(FIELD_EDGE_BAND_SPACINGS * spacing), round(spacing) + 2)
 
-    def cut(at_side: np.ndarray, along: np.ndarray, length: int, beyond: np.ndarray) -> bool:
-        return (
-            beyond.size > 0
-            and _covered(along[at_side], spacing, length) > FIELD_EDGE_COVER
-            and float(beyond.mean()) > threshold
-        )
+    def cut(along: np.ndarray, length: int, beyond: Callable[[int, int], np.ndarray]) -> bool:
+        """Whether returns at positions ``along`` a side ``length`` pixels long cut the
+        spacecraft there; ``beyond(lo, hi)``: the band past the side alongside [lo, hi)."""
+        if along.size == 0:
+            return False
+        covered = _covered(along, spacing, length)
+        if covered <= FIELD_EDGE_COVER and covered * length < FIELD_EDGE_RUN_SPACINGS * spacing:
+            return False
+        band = beyond(int(along.min()), int(along.max()) + 1)
+        return band.size > 0 and float(band.mean()) > threshold
 
     top, bottom, left, right = region.y0, region.y1, region.x0, region.x1
-    if cut(rows < y0 + spacing, cols, w, gray[max(y0 - far, 0) : max(y0 - near, 0), x0:x1]):
+    above, below = gray[max(y0 - far, 0) : max(y0 - near, 0)], gray[y1 + near : y1 + far]
+    before, after = gray[:, max(x0 - far, 0) : max(x0 - near, 0)], gray[:, x1 + near : x1 + far]
+    if cut(cols[rows < y0 + spacing], w, lambda lo, hi: above[:, lo:hi]):
         top = max(0, round(region.y0 - FIELD_EDGE_GROWTH * h))
-    if cut(rows >= y1 - spacing, cols, w, gray[y1 + near : y1 + far, x0:x1]):
+    if cut(cols[rows >= y1 - spacing], w, lambda lo, hi: below[:, lo:hi]):
         bottom = min(H, round(region.y1 + FIELD_EDGE_GROWTH * h))
-    if cut(cols < x0 + spacing, rows, h, gray[y0:y1, max(x0 - far, 0) : max(x0 - near, 0)]):
+    if cut(rows[cols < x0 + spacing], h, lambda lo, hi: before[lo:hi]):
         left = max(0, round(region.x0 - FIELD_EDGE_GROWTH * w))
-    if cut(cols >= x1 - spacing, rows, h, gray[y0:y1, x1 + near : x1 + far]):
+    if cut(rows[cols >= x1 - spacing], h, lambda lo, hi: after[lo:hi]):
         right = min(W, round(region.x1 + FIELD_EDGE_GROWTH * w))
     return Region(top, bottom, left, right)
 

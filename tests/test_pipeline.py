@@ -80,6 +80,35 @@ def test_the_region_grows_past_the_edge_of_a_lidar_field_narrower_than_the_camer
     assert cut.x1 >= 600 and plain.x1 >= 800, "the cut panel's crop reaches past the field"
 
 
+def panel_past_the_field(panel_rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """A bus (rows 100-900, columns 100-400) with a panel out to column 1000 on ``panel_rows``;
+    the LIDAR's field ends at column 500, across the panel only."""
+    gray, sparse = frame(box=(100, 900, 100, 400))
+    panel_gray, panel_sparse = frame(box=(*panel_rows, 400, 1000))
+    gray, sparse = np.maximum(gray, panel_gray), np.maximum(sparse, panel_sparse)
+    sparse[:, 500:] = 0
+    return gray, sparse
+
+
+def test_the_region_grows_where_the_field_cuts_across_part_of_the_spacecraft():
+    """The field's edge crosses a panel 300 px wide (20 return spacings) on a side 800 px
+    long: a cut, so the crop grows on that side, and only where the image beyond the cut,
+    alongside it, is bright. A panel 100 px wide ending there is the spacecraft's outline
+    meeting its box, and the crop keeps its margin."""
+    gray, sparse = panel_past_the_field((300, 600))
+    cols = np.nonzero(sparse)[1]
+    width = cols.max() + 1 - cols.min()
+    grown = region_of_interest(gray, sparse)
+    dark = gray.copy()
+    dark[:, 500:] = 0
+    ended = region_of_interest(dark, sparse)
+    assert (grown.y0, grown.y1, grown.x0) == (ended.y0, ended.y1, ended.x0)
+    assert grown.x1 == min(1024, round(ended.x1 + FIELD_EDGE_GROWTH * width)) == 1024
+    assert ended.x1 < 700
+    narrow_gray, narrow_sparse = panel_past_the_field((450, 550))
+    assert region_of_interest(narrow_gray, narrow_sparse).x1 < 700
+
+
 def test_complete_runs_on_the_crop_and_pastes_back():
     gray, sparse = frame()
     calls = []
