@@ -27,8 +27,9 @@ than the frames sigma was calibrated on, and the returns show which); it counts
 return in metres (``SIGMA_PER_APART_M``: a surface strays from what was measured on it with
 how far one goes, whatever the camera or LIDAR; a distance in pixels or in return spacings
 would change with them); where the network missed the returns by more than the noise, the
-depth between them is uncertain by about as much (the *misfit*); and no depth is better than
-the LIDAR's own noise.
+depth between them is uncertain by about as much (the *misfit*); where the depth differs from
+the nearest return's, a depth edge or a steep surface may lie between them (the
+*disagreement*); and no depth is better than the LIDAR's own noise.
 
 It runs on the working grid, so it costs the same (a few milliseconds) whatever the camera and
 the frame's size. The choice of ``SIGMA_PER_SPACING``, ``SIGMA_BOUNDS_PX`` and ``SHRINK``, and
@@ -54,16 +55,18 @@ SHRINK = 0.5
 #: Median absolute deviation -> standard deviation, for Gaussian noise.
 MAD_TO_STD = 1.4826
 
-#: ``anchored_sigma``'s coefficients (fit on validation frames of the mixed world: see the
-#: module's docstring for where): the network's sigma, rescaled by the frame's error ratio at
-#: the returns, counts ``SIGMA_AT_RETURN`` times at a return, and ``SIGMA_PER_APART_M`` times
-#: per metre of lateral distance to the nearest return, in quadrature; ...
-SIGMA_AT_RETURN = 1.75
-SIGMA_PER_APART_M = 14.0
-#: ... the local misfit (metres) and the frame's noise (metres, a standard deviation) this
-#: many times, all in quadrature.
-SIGMA_PER_MISFIT = 1.5
-SIGMA_PER_NOISE = 0.25
+#: ``anchored_sigma``'s coefficients (fit on validation frames of the mixed world and of the
+#: paper's camera: docs/development.md, "Measurements"): the network's sigma, rescaled by the
+#: frame's error ratio at the returns, counts ``SIGMA_AT_RETURN`` times at a return, and
+#: ``SIGMA_PER_APART_M`` times per metre of lateral distance to the nearest return, in
+#: quadrature; ...
+SIGMA_AT_RETURN = 1.19
+SIGMA_PER_APART_M = 15.8
+#: ... the local misfit (metres), the frame's noise (metres, a standard deviation) and the
+#: disagreement with the nearest return (metres) this many times, all in quadrature.
+SIGMA_PER_MISFIT = 1.0
+SIGMA_PER_NOISE = 0.36
+SIGMA_PER_DISAGREEMENT = 0.35
 #: The frame's error ratio is at least this: a network that fits the returns exactly is not
 #: exact between them.
 MIN_ERROR_RATIO = 0.02
@@ -73,14 +76,16 @@ MIN_ERROR_RATIO = 0.02
 class Anchored:
     """The anchored depth (h, w metres) and what anchoring measured on the same grid: how far
     each pixel lies from the nearest return (``apart_m``, metres across the line of sight: its
-    distance in pixels times its depth's footprint), the local ``misfit`` (metres: the
-    kernel-weighted mean of the returns' residuals less the noise),
-    the frame's ``noise_m`` (metres, the residuals' robust standard deviation), and where the
-    returns on the mask are (``rows``, ``cols``) with the depth's ``residual`` there (metres,
-    measured - predicted, before anchoring)."""
+    distance in pixels times its depth's footprint), how far its depth is from that return's
+    (``disagreement_m``, metres: what a fill that repeats the nearest return would answer
+    differs by this much), the local ``misfit`` (metres: the kernel-weighted mean of the
+    returns' residuals less the noise), the frame's ``noise_m`` (metres, the residuals' robust
+    standard deviation), and where the returns on the mask are (``rows``, ``cols``) with the
+    depth's ``residual`` there (metres, measured - predicted, before anchoring)."""
 
     depth: np.ndarray
     apart_m: np.ndarray
+    disagreement_m: np.ndarray
     misfit: np.ndarray
     noise_m: float
     rows: np.ndarray
@@ -105,13 +110,14 @@ def anchor_to_returns(
     """``depth`` (H, W metres) corrected by its residuals at the returns of ``sparse`` (H, W
     metres, 0 = none) that fall on ``mask`` (H, W bool, the spacecraft: returns off it are
     not the depth's to agree with), spread with a Gaussian of ``sigma_px`` pixels; unchanged
-    (apart, misfit and noise 0) without such returns. The correction covers the whole grid,
-    so that resampling the mask to the frame never meets an uncorrected pixel at its
-    border. ``focal_px``: the grid's focal length in its pixels, for ``apart_m``."""
+    (apart, disagreement, misfit and noise 0) without such returns. The
+    correction covers the whole grid, so that resampling the mask to the frame never meets an
+    uncorrected pixel at its border. ``focal_px``: the grid's focal length in its pixels, for
+    ``apart_m``."""
     rows, cols = np.nonzero((sparse > 0) & mask & (depth > 0))
     if len(rows) == 0:
         nothing = np.zeros(depth.shape, np.float32)
-        return Anchored(depth, nothing, nothing, 0.0, rows, cols, np.zeros(0, np.float32))
+        return Anchored(depth, nothing, nothing, nothing, 0.0, rows, cols, np.zeros(0, np.float32))
     residual = sparse[rows, cols] - depth[rows, cols]
     noise_m = MAD_TO_STD * float(np.median(np.abs(residual)))
     local = np.sign(residual) * np.maximum(np.abs(residual) - SHRINK * noise_m, 0.0)
@@ -129,9 +135,22 @@ def anchor_to_returns(
     correction = reach * spread(local) / total
     misfit = spread(np.abs(local)) / total
     corrected = (depth + correction).astype(np.float32)
-    apart_m = cv2.distanceTransform(cv2.compare(sparse, 0, cv2.CMP_LE), cv2.DIST_L2, 5)
+    apart_m, nearest = nearest_return(sparse)
     apart_m *= np.abs(corrected) / focal_px  # pixels -> metres
-    return Anchored(corrected, apart_m, misfit, noise_m, rows, cols, residual)
+    disagreement_m = np.abs(corrected - nearest)
+    return Anchored(corrected, apart_m, disagreement_m, misfit, noise_m, rows, cols, residual)
+
+
+def nearest_return(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every pixel of ``sparse`` (h, w metres, 0 = no return, at least one return): its
+    distance to the nearest return (pixels) and that return's depth (metres), float32 (h, w).
+    One distance transform with labels: each return is its own label, numbered in row-major
+    order from 1."""
+    apart_px, labels = cv2.distanceTransformWithLabels(
+        cv2.compare(sparse, 0, cv2.CMP_LE), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+    )
+    depths = np.concatenate([np.zeros(1, np.float32), sparse[sparse > 0]])
+    return apart_px, depths[labels]
 
 
 def error_ratio(sigma: np.ndarray, anchored: Anchored) -> float:
@@ -150,4 +169,6 @@ def anchored_sigma(sigma: np.ndarray, anchored: Anchored) -> np.ndarray:
     rescaled = sigma * error_ratio(sigma, anchored)
     scale = SIGMA_AT_RETURN**2 + (SIGMA_PER_APART_M * anchored.apart_m) ** 2
     variance = rescaled * rescaled * scale + (SIGMA_PER_MISFIT * anchored.misfit) ** 2
-    return np.sqrt(variance + (SIGMA_PER_NOISE * anchored.noise_m) ** 2).astype(np.float32)
+    variance += (SIGMA_PER_DISAGREEMENT * anchored.disagreement_m) ** 2
+    variance += (SIGMA_PER_NOISE * anchored.noise_m) ** 2
+    return np.sqrt(variance).astype(np.float32)

@@ -9,11 +9,13 @@ from sdcnet.anchoring import (
     SIGMA_AT_RETURN,
     SIGMA_BOUNDS_PX,
     SIGMA_PER_APART_M,
+    SIGMA_PER_DISAGREEMENT,
     SIGMA_PER_MISFIT,
     SIGMA_PER_NOISE,
     anchor_to_returns,
     anchored_sigma,
     error_ratio,
+    nearest_return,
     spreading_sigma_px,
 )
 
@@ -111,11 +113,14 @@ def test_the_sigma_shrinks_at_the_returns_and_grows_away_from_them():
     ratio = error_ratio(network, anchored)
     assert ratio == pytest.approx(np.median(np.abs(anchored.residual)) / 0.1)
     floor = (SIGMA_PER_MISFIT * anchored.misfit) ** 2 + (SIGMA_PER_NOISE * anchored.noise_m) ** 2
+    floor += (SIGMA_PER_DISAGREEMENT * anchored.disagreement_m) ** 2
     at_return = math.sqrt((0.1 * ratio * SIGMA_AT_RETURN) ** 2 + floor[28, 28])
     assert sigma[28, 28] == pytest.approx(at_return, rel=1e-4)
     # (80, 80) is 44 px down and across from the nearest return, (36, 36): 62 px of 5 cm
     apart_m = math.hypot(44, 44) * truth[80, 80] / FOCAL_PX
     assert anchored.apart_m[80, 80] == pytest.approx(apart_m, rel=0.02)
+    # ... and 44 columns of 1 cm each further along the tilt than it
+    assert anchored.disagreement_m[80, 80] == pytest.approx(0.44, abs=0.01)
     far = 0.1 * ratio * math.hypot(SIGMA_AT_RETURN, SIGMA_PER_APART_M * anchored.apart_m[80, 80])
     assert sigma[80, 80] == pytest.approx(math.sqrt(far**2 + floor[80, 80]), rel=1e-4)
     assert sigma[28, 28] < sigma[30, 30] < sigma[80, 80]  # between returns: a little apart
@@ -177,8 +182,33 @@ def test_the_sigma_covers_an_error_the_returns_measured():
     expected = math.sqrt(
         (0.01 * ratio * SIGMA_AT_RETURN) ** 2
         + (SIGMA_PER_MISFIT * anchored.misfit[36, 36]) ** 2
+        + (SIGMA_PER_DISAGREEMENT * anchored.disagreement_m[36, 36]) ** 2
         + (SIGMA_PER_NOISE * anchored.noise_m) ** 2
     )
     assert sigma[36, 36] == pytest.approx(expected, rel=1e-4)  # 0 m apart at the return
-    assert sigma[36, 36] > 2.0  # the error left between the returns is within 1 sigma
+    assert sigma[36, 36] > 1.9  # about the 2 m error the returns measured around it
     assert sigma[70, 70] < 0.1  # far from the error: the network's and the noise's sigma
+
+
+def test_the_nearest_return_and_its_depth_are_found_for_every_pixel():
+    sparse = np.zeros((5, 6), np.float32)
+    sparse[4, 1], sparse[0, 4], sparse[2, 0] = 7.0, 3.0, 5.0
+    apart_px, depth = nearest_return(sparse)
+    assert depth[0, 0] == 5.0 and depth[4, 5] == 7.0 and depth[1, 5] == 3.0
+    assert depth[4, 1] == 7.0 and apart_px[4, 1] == 0.0
+    assert apart_px[0, 0] == pytest.approx(2.0, abs=0.05)  # two rows above (2, 0)
+
+
+def test_the_sigma_grows_across_a_depth_edge():
+    """One panel with returns on a grid, a second one 3 m behind on the right with none: the
+    back panel's pixels, whose nearest returns are the front's, are as uncertain as 3 m of
+    disagreement says, many times the front panel's pixels between its returns."""
+    depth = np.full((SIZE, SIZE), 50.0, np.float32)
+    depth[:, 60:] += 3.0
+    sparse = np.zeros_like(depth)
+    sparse[4:90:4, 4:56:4] = 50.0
+    anchored = anchor_to_returns(depth, depth > 0, sparse, 2.0, FOCAL_PX)
+    sigma = anchored_sigma(np.full_like(depth, 0.05), anchored)
+    assert anchored.disagreement_m[48, 62] == pytest.approx(3.0, abs=1e-3)
+    assert anchored.disagreement_m[48, 30] == 0.0
+    assert sigma[48, 62] >= SIGMA_PER_DISAGREEMENT * 3.0 > 3 * sigma[48, 30]
