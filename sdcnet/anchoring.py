@@ -60,13 +60,13 @@ MAD_TO_STD = 1.4826
 #: frame's error ratio at the returns, counts ``SIGMA_AT_RETURN`` times at a return, and
 #: ``SIGMA_PER_APART_M`` times per metre of lateral distance to the nearest return, in
 #: quadrature; ...
-SIGMA_AT_RETURN = 1.19
-SIGMA_PER_APART_M = 15.8
+SIGMA_AT_RETURN = 1.15
+SIGMA_PER_APART_M = 15.3
 #: ... the local misfit (metres), the frame's noise (metres, a standard deviation) and the
 #: disagreement with the nearest return (metres) this many times, all in quadrature.
-SIGMA_PER_MISFIT = 1.0
-SIGMA_PER_NOISE = 0.36
-SIGMA_PER_DISAGREEMENT = 0.35
+SIGMA_PER_MISFIT = 0.97
+SIGMA_PER_NOISE = 0.35
+SIGMA_PER_DISAGREEMENT = 0.34
 #: The frame's error ratio is at least this: a network that fits the returns exactly is not
 #: exact between them.
 MIN_ERROR_RATIO = 0.02
