@@ -81,11 +81,11 @@ docker-check: $(STAMP)
 ## steps the third model took: FSNet one epoch; FSNet three more and stage 2 three (its
 ## run had a six-epoch schedule and was stopped after three; its best epoch was the first); FSNet
 ## fine-tuned three more epochs on the trained FDCNet; its sigma calibrated on val, the scale
-## head alone, then with the depth-edge term. The fourth model (shipped) widens that FSNet
+## head alone, then with the depth-edge term. The fourth model widens that FSNet
 ## (--fsnet-growth 2) and trains it 25 epochs in three runs on views 0-11 of the same world,
 ## the depth networks kept; then its sigma is calibrated again the same way. The fifth model
 ## fine-tunes that FSNet 14 more epochs in two runs on 99 models none of the others
-## saw (data/mixed-s1, seed 1), its depth networks and sigma the fourth's. The sixth (shipped)
+## saw (data/mixed-s1, seed 1), its depth networks and sigma the fourth's. The sixth
 ## adds FSNet's coarse context branch (--fsnet-context) and trains FSNet 12 epochs on 99 new
 ## models again (data/mixed-s2, seed 2; 13 min), its depth networks and sigma the fifth's. The
 ## seventh (shipped) trains that FSNet 10 more epochs on 99 new models (data/mixed-s4, seed 4;
