@@ -28,7 +28,8 @@ from sdcnet.pipeline import complete
 from sdcnet.pointcloud import read_ply
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.runtime.onnx import OnnxModel
-from tests.support.frames import png_bytes, synthetic_frame, write_dataset
+from tests.support.attacks import connect, request_head
+from tests.support.frames import multipart_body, png_bytes, synthetic_frame, write_dataset
 from tests.support.models import TINY_VERSION
 from tests.support.serving import running_service
 
@@ -151,6 +152,10 @@ def test_python_api_returns_arrays(url, frame_files):
 
 
 def test_concurrent_clients_retry_503_and_all_succeed(url):
+    """Three clients while the one place is held (a raw request, its body one byte short):
+    each is refused with 503, waits Retry-After and tries again; the place is given back
+    meanwhile and all three are answered. Holding the place makes the refusals certain
+    (three clients racing for it could be served one after another on a fast machine)."""
     s = frame(1024)
     overloaded = 'sdcnet_inference_request_failure_total{reason="overloaded"}'
 
@@ -160,10 +165,14 @@ def test_concurrent_clients_retry_503_and_all_succeed(url):
 
     before = refused()
     results, errors = [], []
-    start = threading.Barrier(3)
+    small = frame(128)
+    body, content_type = multipart_body(
+        {"gray": ("g.png", png_bytes(small.gray)), "sparse": ("s.npy", npy_bytes(small.sparse))}
+    )
+    holder = connect(url)
+    holder.sendall(request_head("/complete", len(body), content_type) + body[:-1])
 
     def run(client: Client) -> None:
-        start.wait()
         try:
             results.append(client.complete(s.gray, s.sparse))
         except Exception as exc:
@@ -173,10 +182,13 @@ def test_concurrent_clients_retry_503_and_all_succeed(url):
         threads = [threading.Thread(target=run, args=(client,)) for _ in range(3)]
         for t in threads:
             t.start()
+        time.sleep(0.8)  # the three refused at once, waiting out Retry-After
+        holder.sendall(body[-1:])
+        holder.close()
         for t in threads:
             t.join()
     assert not errors and len(results) == 3
-    assert refused() > before  # some were refused with 503 and went through on a retry
+    assert refused() >= before + 3  # each was refused with 503 and went through on a retry
     assert max(r.latency_s for r in results) >= 1.0  # ... after Retry-After: 1
 
 
