@@ -110,10 +110,9 @@ def anchor_to_returns(
     """``depth`` (H, W metres) corrected by its residuals at the returns of ``sparse`` (H, W
     metres, 0 = none) that fall on ``mask`` (H, W bool, the spacecraft: returns off it are
     not the depth's to agree with), spread with a Gaussian of ``sigma_px`` pixels; unchanged
-    (apart, disagreement, misfit and noise 0) without such returns. The
-    correction covers the whole grid, so that resampling the mask to the frame never meets an
-    uncorrected pixel at its border. ``focal_px``: the grid's focal length in its pixels, for
-    ``apart_m``."""
+    (apart, disagreement, misfit and noise 0) without such returns. The correction covers the
+    whole grid, so that resampling the mask to the frame never meets an uncorrected pixel at
+    its border. ``focal_px``: the grid's focal length in its pixels, for ``apart_m``."""
     rows, cols = np.nonzero((sparse > 0) & mask & (depth > 0))
     if len(rows) == 0:
         nothing = np.zeros(depth.shape, np.float32)
