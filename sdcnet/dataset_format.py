@@ -120,7 +120,10 @@ class SampleStore:
         self.info = json.loads(info.read_text())
         manifest = self.root / "manifest.jsonl"
         if not manifest.is_file():
-            raise FileNotFoundError(f"{manifest} is missing: generation did not finish")
+            raise FileNotFoundError(
+                f"{manifest} is missing: generation did not finish (run it again to resume, "
+                "or `sdc-data close` to use the samples rendered so far)"
+            )
         self.records = [json.loads(line) for line in manifest.read_text().splitlines() if line]
 
     def __len__(self) -> int:

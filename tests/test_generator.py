@@ -10,7 +10,7 @@ import trimesh
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR
 from sdcnet.dataset_format import SampleStore
 from sdcnet.meshes import read_mesh_folder
-from sdcnet.training.data.generate import GenerateConfig, generate, model_splits
+from sdcnet.training.data.generate import GenerateConfig, close, generate, model_splits
 from sdcnet.training.data.lidar import scan
 from sdcnet.training.data.materials import Material, jittered_shading
 from sdcnet.training.data.render import PosedModel, render_camera
@@ -163,3 +163,19 @@ def test_generation_resumes_and_refuses_mixed_settings(tiny_dataset, tmp_path):
     assert store is not None and len(store) == 6
     with pytest.raises(ValueError, match="other settings"):
         generate(GenerateConfig(models=3, views=2, size=128, seed=2), out, progress=False)
+
+
+def test_a_stopped_generation_is_closed_over_its_complete_samples(tmp_path):
+    out = tmp_path / "d"
+    config = GenerateConfig(models=3, views=2, size=128, seed=1)
+    assert generate(config, out, shard=(0, 2), progress=False) is None
+    with pytest.raises(FileNotFoundError, match="sdc-data close"):
+        SampleStore(out)
+    done = sorted(p.name for p in (out / "samples").glob("*.npz"))
+    (out / "samples" / "m0002_v001.npz").write_bytes(b"PK cut off mid-write")
+    store = close(out)
+    assert sorted(r["file"].split("/")[-1] for r in store.records) == done
+    assert len(store) == 3 and store.load(store.records[0]).gray.shape == (128, 128)
+    assert len(generate(config, out, progress=False)) == 6  # resumed: the cut sample redone
+    with pytest.raises(FileNotFoundError, match="not a dataset"):
+        close(tmp_path)

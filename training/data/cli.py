@@ -14,10 +14,17 @@ import cv2
 import numpy as np
 
 from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
+from sdcnet.dataset_format import SampleStore
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.training.data.conditions import WORLDS
-from sdcnet.training.data.generate import GenerateConfig, build_spacecraft, generate, make_sample
+from sdcnet.training.data.generate import (
+    GenerateConfig,
+    build_spacecraft,
+    close,
+    generate,
+    make_sample,
+)
 from sdcnet.training.data.preview import preview
 from sdcnet.training.data.scene import SceneConfig
 from sdcnet.training.data.sequence import TRAJECTORIES, SequenceConfig, write_sequences
@@ -77,8 +84,18 @@ def cmd_generate(args: argparse.Namespace) -> int:
             "the manifest is written once every shard has finished"
         )
     else:
-        counts = {s: len(store.split(s)) for s in sorted({r["split"] for r in store.records})}
-        print(f"{len(store)} samples in {args.out} ({counts}) after {elapsed:.0f} s")
+        print(f"{_describe(store, args.out)} after {elapsed:.0f} s")
+    return 0
+
+
+def _describe(store: SampleStore, root: Path) -> str:
+    """How many samples a dataset holds, per split."""
+    counts = {s: len(store.split(s)) for s in sorted({r["split"] for r in store.records})}
+    return f"{len(store)} samples in {root} ({counts})"
+
+
+def cmd_close(args: argparse.Namespace) -> int:
+    print(f"{_describe(close(args.dataset), args.dataset)}: manifest written")
     return 0
 
 
@@ -239,6 +256,14 @@ def parser() -> argparse.ArgumentParser:
     )
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=cmd_generate)
+
+    c = sub.add_parser(
+        "close",
+        help="write the manifest over the samples rendered so far: train on a generation "
+        "stopped before its end (generate again to resume it later)",
+    )
+    c.add_argument("dataset", type=Path, help="dataset directory")
+    c.set_defaults(func=cmd_close)
 
     e = sub.add_parser(
         "example", help="one frame of a mesh as a user sends it: NAME.png and NAME.returns.csv"

@@ -249,3 +249,18 @@ def generate(
         return None
     write_manifest(out, [read_meta(f) for f in files])
     return SampleStore(out)
+
+
+def close(out: Path) -> SampleStore:
+    """Write the manifest over the samples of ``out`` rendered so far, so that a generation
+    stopped before its end (a time limit, a killed job) can be trained on as it stands. A
+    sample cut off mid-write is left out; running ``generate`` again later still resumes and
+    rewrites the manifest over every sample once all exist."""
+    out = Path(out)
+    if not (out / "dataset.json").is_file():
+        raise FileNotFoundError(f"{out} is not a dataset (no dataset.json): sdc-data generate")
+    files = sorted(f for f in (out / "samples").glob("*.npz") if is_complete(f))
+    if not files:
+        raise ValueError(f"{out} holds no complete sample yet")
+    write_manifest(out, [read_meta(f) for f in files])
+    return SampleStore(out)
