@@ -181,6 +181,11 @@ MESHES ?= ../shared/real-meshes
 CONDITIONS := paper earth sun-moon wide-multibeam flash docking narrow-far any
 $(THIRD_ONNX):
 	mkdir -p $(dir $@) && git show $(THIRD):models/sdcnet.onnx > $@
+# the seventh shipped model (git $(SEVENTH)), the one this model's FSNet was trained from
+SEVENTH ?= b849b94
+SEVENTH_ONNX := runs/seventh/seventh-model.onnx
+$(SEVENTH_ONNX):
+	mkdir -p $(dir $@) && git show $(SEVENTH):models/sdcnet.onnx > $@
 reports: $(STAMP) $(THIRD_ONNX)
 	$(VENV)/bin/sdc-data generate --out data/paper --models 126 --views 64 --size 1024 --seed 0 \
 		--only-splits test
@@ -216,9 +221,9 @@ reports: $(STAMP) $(THIRD_ONNX)
 ## bench: regenerate the benchmark tables and plots in docs/benchmarks/ (needs data/paper and
 ## data/robustness from `make reports`; FP16/INT8 variants are made in runs/variants, not shipped)
 .PHONY: bench
-bench: $(STAMP) $(THIRD_ONNX)
+bench: $(STAMP) $(THIRD_ONNX) $(SEVENTH_ONNX)
 	$(PY) -m benchmarks.pipeline_latency --onnx models/sdcnet.onnx --data data/robustness \
-		--beside $(THIRD_ONNX) --previous $(PREVIOUS)
+		--beside $(SEVENTH_ONNX) $(THIRD_ONNX) --previous $(PREVIOUS)
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out runs/variants/sdcnet.onnx \
 		--variants fp16 int8 --calibration-data data/mixed
 	$(PY) -m benchmarks.model_latency --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx

@@ -8,6 +8,7 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
+from sdcnet.allocator import configure_malloc
 from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
 from sdcnet.evaluation.card import write_card
 from sdcnet.evaluation.evaluate import evaluate_split
@@ -57,6 +58,7 @@ def cmd_real(args: argparse.Namespace) -> int:
 def cmd_robustness(args: argparse.Namespace) -> int:
     from sdcnet.evaluation.robustness import run_suite
 
+    configure_malloc()  # its milliseconds are the pipeline's as sdc-serve runs it
     table = run_suite(
         methods_of(args),
         args.conditions,
