@@ -84,8 +84,9 @@ def _data_lines(runs: list[dict]) -> list[str]:
         seen.setdefault(data.get("command", "?"), data)
     return [
         f"- Data: `{command}` (seed {data.get('seed')}; {data.get('models')} models x "
-        f"{data.get('views')} views; models per split {data.get('split_models')}). Test "
-        "models are never seen in training."
+        f"{data.get('views')} views; models per split {data.get('split_models')}"
+        + (f"; frames used {data['frames']}" if "frames" in data else "")
+        + "). Test models are never seen in training."
         for command, data in seen.items()
     ]
 

@@ -64,6 +64,7 @@ def test_fit_runs_both_stages_and_keeps_its_records(run):
     _, state = load_checkpoint(run / "best.pt")
     assert state["train_config"]["variant"] == "sdcnet"
     assert state["dataset"]["command"].startswith("sdc-data generate")
+    assert state["dataset"]["frames"] == {"train": 2, "val": 2}  # 3 models x 2 views, 1:1:1
     assert "torch" in state["hardware"]
 
 
@@ -141,6 +142,7 @@ def test_evaluate_prints_the_table_with_the_floor_and_writes_the_card(
         == 0
     )
     assert "| classical fill |" in card.read_text()
+    assert "frames used {'train': 2, 'val': 2}" in card.read_text()
 
 
 def test_init_weights_fine_tunes_the_segmentation_alone(run, tiny_dataset, tmp_path):

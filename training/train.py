@@ -149,6 +149,9 @@ class Trainer:
         self.val_records = self.store.split("val") or train[:2]
         if config.val_samples:
             self.val_records = evenly_spread(self.val_records, config.val_samples)
+        # the frames this run used: fewer than models x views where the dataset was closed
+        # before its end (`sdc-data close`) or subsampled (--train-samples, --val-samples)
+        self.frames = {"train": len(train), "val": len(self.val_records)}
         self.model = build_model(
             config.variant,
             fsnet_inputs=config.fsnet_inputs,
@@ -182,7 +185,8 @@ class Trainer:
             "dataset": {
                 k: self.store.info.get(k, "paper" if k == "world" else None)
                 for k in ("command", "seed", "models", "views", "size", "split_models", "world")
-            },
+            }
+            | {"frames": self.frames},
         }
         if self.config.init_weights:
             state = self._init_checkpoint
