@@ -450,7 +450,8 @@ RETURN_REACH_PX = 1
 
 
 def drop_specks(mask: np.ndarray, sparse: np.ndarray, reach_px: int) -> np.ndarray:
-    """``mask`` without the components that cannot be the spacecraft: stars, the Earth, glare.
+    """``mask`` without the components that cannot be the spacecraft: stars, the Earth, glare
+    (``mask`` itself when every component is vouched for).
 
     The LIDAR answers from the target and never from the sky behind it, so a component
     (8-connected) with a return on it, or within ``reach_px``, is the spacecraft, and one
@@ -468,6 +469,8 @@ def drop_specks(mask: np.ndarray, sparse: np.ndarray, reach_px: int) -> np.ndarr
     found = cv2.findNonZero(returns)
     xy = found.reshape(-1, 2) if found is not None else np.empty((0, 2), np.intp)
     vouched = np.bincount(labels[xy[:, 1], xy[:, 0]], minlength=count) > 0
+    if vouched[1:].all():  # the usual frame: nothing to drop, no pass over the labels
+        return mask
     vouched[0] = False
     if count > 256:
         return vouched[labels]
@@ -559,7 +562,8 @@ def complete(
         # the image guides the outline near stars and noise too: vouched for again, in frame px
         above = prob_crop > threshold
         mask_crop = drop_specks(above, sparse[crop], RETURN_REACH_PX)
-        np.copyto(prob_crop, 0.0, where=above ^ mask_crop)
+        if mask_crop is not above:
+            np.copyto(prob_crop, 0.0, where=above ^ mask_crop)
     else:
         prob_crop = resample_image(prob_w, grid.region.shape)
         mask_crop = kept if grid.identity else prob_crop > threshold
