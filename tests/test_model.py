@@ -8,7 +8,7 @@ from sdcnet.camera import PAPER_CAMERA
 from sdcnet.dataset_format import SampleStore, write_sample
 from sdcnet.pipeline import Region
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint, transplant_weights
-from sdcnet.training.dataset import TileDataset, holding_target
+from sdcnet.training.dataset import TileDataset, cut_returns, holding_target
 from sdcnet.training.losses import (
     depth_gradient_loss,
     foreground_depth_loss,
@@ -440,3 +440,31 @@ def test_whole_target_items_hold_the_parts_no_return_reached(tmp_path):
     assert covered[0.0] < 0.85
     with pytest.raises(ValueError, match="whole_target_share"):
         TileDataset(store, store.records, stride=64, whole_target_share=1.5)
+
+
+def test_a_field_cut_drops_the_returns_past_a_straight_line_and_keeps_the_truth(tmp_path):
+    sparse = np.zeros((64, 80), np.float32)
+    sparse[8:56:4, 10:70:4] = 50.0  # a grid of returns over rows 8-52, columns 10-66
+    for seed in range(12):
+        cut = cut_returns(sparse, np.random.default_rng(seed))
+        assert set(np.unique(cut)) <= {0.0, 50.0} and 0 < (cut > 0).sum() < (sparse > 0).sum()
+        kept_rows, kept_cols = np.nonzero(cut > 0)
+        lost_rows, lost_cols = np.nonzero((sparse > 0) & (cut == 0))
+        # one straight line, a row or a column, between what is kept and what is lost
+        by_row = kept_rows.max() < lost_rows.min() or kept_rows.min() > lost_rows.max()
+        by_col = kept_cols.max() < lost_cols.min() or kept_cols.min() > lost_cols.max()
+        assert by_row or by_col
+        span = (lost_rows if by_row else lost_cols).size / (sparse > 0).sum()
+        assert 0.15 < span < 0.85  # within CUT_SPAN of the returns' extent
+    assert cut_returns(np.zeros((8, 8), np.float32), np.random.default_rng(0)).sum() == 0
+    root = write_dataset(tmp_path / "data", {"train": 1}, size=256)
+    store = SampleStore(root)
+    sample = store.load(store.records[0])
+    sample.meta["intrinsics"] = PAPER_CAMERA.intrinsics().scaled(256, 256).as_dict()
+    write_sample(root / store.records[0]["file"], sample)
+    plain = TileDataset(store, store.records, tile=None, stride=64)[0]
+    cut = TileDataset(store, store.records, tile=None, stride=64, field_cut_share=1.0)[0]
+    assert torch.equal(cut["depth"], plain["depth"]) and torch.equal(cut["gray"], plain["gray"])
+    assert 0 < (cut["sparse"] > 0).sum() < (plain["sparse"] > 0).sum()
+    with pytest.raises(ValueError, match="field_cut_share"):
+        TileDataset(store, store.records, stride=64, field_cut_share=-0.1)

@@ -164,6 +164,7 @@ class Trainer:
             tile=config.tile,
             augment=True,
             whole_target_share=config.whole_target_share,
+            field_cut_share=config.field_cut_share,
             seed=config.seed,
             stride=self.model.config.stride,
         )

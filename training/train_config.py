@@ -62,6 +62,12 @@ class TrainConfig:
         "share of training items cropped to hold the whole spacecraft, not only its returns' "
         "region: shows the network the parts no return reached (a LIDAR narrower than the camera)",
     )
+    field_cut_share: float = setting(
+        0.0,
+        "share of training items whose returns are cut off past a random straight line across "
+        "them, the truth kept: a LIDAR field that ends across the spacecraft, where the mask "
+        "must go on without returns",
+    )
     samples_per_epoch: int | None = setting(
         None, "training frames drawn per epoch (unset: the whole train split)"
     )
