@@ -69,7 +69,9 @@ class TrainConfig:
         "must go on without returns",
     )
     samples_per_epoch: int | None = setting(
-        None, "training frames drawn per epoch (unset: the whole train split)"
+        None,
+        "training frames drawn per epoch (unset, or more than the train split holds: the whole "
+        "train split)",
     )
     train_samples: int | None = setting(None, "train frames used, evenly spread (unset: every one)")
     val_samples: int | None = setting(

@@ -247,6 +247,11 @@ def generate(
     files = [out / "samples" / f"{sample_id(t[2], t[3])}.npz" for t in tasks]
     if not all(is_complete(f) for f in files):
         return None
+    return _with_manifest(out, files)
+
+
+def _with_manifest(out: Path, files: list[Path]) -> SampleStore:
+    """The dataset ``out`` with its manifest written over ``files`` (its samples, by id)."""
     write_manifest(out, [read_meta(f) for f in files])
     return SampleStore(out)
 
@@ -262,5 +267,4 @@ def close(out: Path) -> SampleStore:
     files = sorted(f for f in (out / "samples").glob("*.npz") if is_complete(f))
     if not files:
         raise ValueError(f"{out} holds no complete sample yet")
-    write_manifest(out, [read_meta(f) for f in files])
-    return SampleStore(out)
+    return _with_manifest(out, files)
