@@ -19,33 +19,56 @@ from sdcnet.training.checkpoint import load_checkpoint
 from sdcnet.training.model.sdcnet import SDCNet
 
 
+def _parent(run: dict) -> dict | None:
+    """The checkpoint a run started from (``--init-weights``, ``--init-segmentation`` or
+    ``--warm-start``), or None."""
+    return run.get("parent") or run.get("segmentation_parent") or run.get("warm_start_parent")
+
+
+def _key(run: dict) -> str:
+    """One text per run, so that runs two averaged checkpoints share are listed once (their
+    histories hold NaN, which never equals itself)."""
+    return json.dumps({k: v for k, v in run.items() if k != "file"}, sort_keys=True, default=str)
+
+
 def lineage(state: dict) -> list[dict]:
     """The runs that made a checkpoint, oldest first: its ``parent`` chain (fine-tuning with
-    ``--init-weights``), then itself; a run that started stage 2 from another checkpoint's
-    FSNet (``--init-segmentation``) comes after that checkpoint's own runs."""
-    runs = [state]
-    while True:
-        first = runs[0]
-        parent = (
-            first.get("parent")
-            or first.get("segmentation_parent")
-            or first.get("warm_start_parent")
-        )
-        if parent is None:
-            return runs
-        runs.insert(0, parent)
+    ``--init-weights``, ``--init-segmentation`` or ``--warm-start``), then itself; for an
+    average (``sdc-train average``) each member's runs, those they share once."""
+    if "averaged" in state:
+        runs: dict[str, dict] = {}
+        for member in state["averaged"]:
+            for run in lineage(member):
+                runs.setdefault(_key(run), run)
+        return list(runs.values())
+    parent = _parent(state)
+    return [*(lineage(parent) if parent is not None else []), state]
 
 
-def _run_line(run: dict) -> str:
-    """One training run: command, hardware, epochs per stage and wall time."""
+def _run_line(run: dict, number: dict[str, int]) -> str:
+    """One training run: command, hardware, the run it started from, epochs per stage and wall
+    time. ``number``: each run's number in the card by ``_key``."""
     history = run.get("history", [])
     minutes = sum(r.get("seconds", 0) for r in history) / 60
     epochs = [sum(1 for r in history if r["stage"] == s) for s in (1, 2)]
+    parent = _parent(run)
+    start = f", from run {number[_key(parent)]}'s weights" if parent is not None else ""
     return (
-        f"`{run.get('train_config', {}).get('command', '?')}` on {run.get('hardware', '?')}: "
-        f"{epochs[0]} FSNet and {epochs[1]} FDCNet epochs up to the kept checkpoint, "
+        f"`{run.get('train_config', {}).get('command', '?')}` on {run.get('hardware', '?')}"
+        f"{start}: {epochs[0]} FSNet and {epochs[1]} FDCNet epochs up to the kept checkpoint, "
         f"{minutes:.0f} min of training and validation"
     )
+
+
+def _average_line(state: dict, number: dict[str, int]) -> list[str]:
+    """The line that says which runs' weights an average's are the mean of (none otherwise)."""
+    if "averaged" not in state:
+        return []
+    members = ", ".join(str(number[_key(m)]) for m in state["averaged"])
+    return [
+        f"- The weights are the mean of runs {members}'s (`sdc-train average`, a model soup: "
+        "checkpoints fine-tuned from one model, averaged)."
+    ]
 
 
 def _recipe(configs: list[dict]) -> str:
@@ -100,7 +123,9 @@ def model_card(
     robustness: dict | None = None,
 ) -> str:
     """Markdown model card of a trained checkpoint and its evaluation reports."""
-    data, runs = state.get("dataset", {}), lineage(state)
+    runs = lineage(state)
+    number = {_key(run): i + 1 for i, run in enumerate(runs)}
+    data = runs[-1].get("dataset", {})
     minutes = sum(r.get("seconds", 0) for run in runs for r in run.get("history", [])) / 60
     params = sum(p.numel() for p in model.parameters())
     fs = sum(p.numel() for p in model.fsnet.parameters()) if model.fsnet is not None else 0
@@ -122,10 +147,11 @@ def model_card(
         "## Training",
         "",
         *_data_lines(runs),
-        f"- Training: {len(runs)} run(s), each starting from the weights the one before kept "
-        f"(`--init-weights`, its FSNet with `--init-segmentation`, or every weight that fits "
-        f"a new design with `--warm-start`), {minutes:.0f} min in all:",
-        *(f"  {i + 1}. {_run_line(run)}." for i, run in enumerate(runs)),
+        f"- Training: {len(runs)} run(s), a fine-tuning run starting from another's kept "
+        f"weights (`--init-weights`, its FSNet with `--init-segmentation`, or every weight "
+        f"that fits a new design with `--warm-start`), {minutes:.0f} min in all:",
+        *(f"  {i + 1}. {_run_line(run, number)}." for i, run in enumerate(runs)),
+        *_average_line(state, number),
         "- Optimiser: Adam, cosine decay per stage; stage 1 BCE on the foreground (eq. 6), stage 2",
         "  L1 on predicted ∩ true foreground (eq. 7) with FSNet frozen. Kept: the best epoch by",
         "  val IOU (stage 1) or val MATE (stage 2).",

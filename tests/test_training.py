@@ -171,6 +171,40 @@ def test_init_weights_fine_tunes_the_segmentation_alone(run, tiny_dataset, tmp_p
     assert source_state["train_config"]["command"] in text
 
 
+def test_average_writes_the_mean_of_fine_tuned_weights_and_the_card_lists_their_runs(
+    run, tiny_dataset, tmp_path, capsys
+):
+    fit = ["fit", "--data", str(tiny_dataset), "--out", str(tmp_path / "ft"), "--preset", "smoke"]
+    assert train_main([*fit, "--init-weights", str(run / "best.pt"), "--epochs", "0"]) == 0
+    members = [run / "best.pt", tmp_path / "ft" / "best_stage1.pt"]
+    soup = tmp_path / "soup.pt"
+    assert train_main(["average", "--checkpoints", *map(str, members), "--out", str(soup)]) == 0
+    (a, _), (b, _) = (load_checkpoint(m) for m in members)
+    mean, state = load_checkpoint(soup)
+    theirs = [a.state_dict(), b.state_dict()]
+    for name, tensor in mean.state_dict().items():
+        if tensor.is_floating_point():
+            assert torch.allclose(tensor, (theirs[0][name] + theirs[1][name]) / 2, atol=1e-7)
+        else:
+            assert torch.equal(tensor, theirs[0][name])
+    assert not all(unchanged(theirs[0], mean.state_dict(), "fsnet."))
+    assert [m["file"] for m in state["averaged"]] == list(map(str, members))
+    card = tmp_path / "card.md"
+    assert eval_main(["card", "--checkpoint", str(soup), "--out", str(card)]) == 0
+    text = card.read_text()
+    # the fine-tune's parent is the first member: two runs, not three
+    assert "2 run(s)" in text and "from run 1's weights" in text
+    assert "the mean of runs 1, 2's" in text
+    other = tmp_path / "baseline.pt"
+    save_checkpoint(other, build_model("baseline"))
+    refused = ["--out", str(tmp_path / "refused.pt")]
+    assert train_main(["average", "--checkpoints", str(soup), str(other), *refused]) == 2
+    assert "another architecture" in capsys.readouterr().err
+    assert train_main(["average", "--checkpoints", str(soup), *refused]) == 2
+    assert "at least two" in capsys.readouterr().err
+    assert not (tmp_path / "refused.pt").exists()
+
+
 def test_init_weights_of_another_variant_is_refused(run, tiny_dataset, tmp_path, capsys):
     fit = ["fit", "--data", str(tiny_dataset), "--out", str(tmp_path / "r"), "--preset", "smoke"]
     assert train_main([*fit, "--variant", "baseline", "--init-weights", str(run / "best.pt")]) == 2

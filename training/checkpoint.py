@@ -17,6 +17,18 @@ import torch
 from sdcnet.training.model.fsnet import WIDTHS, FSNet
 from sdcnet.training.model.sdcnet import ModelConfig, SDCNet
 
+#: The keys of a checkpoint that tell how it was made (a fine-tuned run keeps its parent's, an
+#: average its members').
+PROVENANCE = (
+    "hardware",
+    "train_config",
+    "dataset",
+    "history",
+    "parent",
+    "segmentation_parent",
+    "averaged",
+)
+
 
 def save_checkpoint(path: Path, model: SDCNet, **extra) -> None:
     """Atomic save of the model's weights and config plus any ``extra`` (JSON-able or tensors)."""
@@ -132,6 +144,37 @@ def load_checkpoint(
     model = SDCNet(ModelConfig.from_dict(state["model_config"]))
     load_weights(model, state["model"], path)
     return model.eval(), state
+
+
+def average_checkpoints(sources: Sequence[str | Path], target: str | Path) -> None:
+    """Write to ``target`` the mean of the ``sources``' weights (a "model soup": checkpoints
+    fine-tuned from one model on other data or at other learning rates, whose mean keeps what
+    each gained and loses less of what each forgot). All must share one architecture; integer
+    tensors (batch-norm counters) are the first's. The result records each source's provenance
+    under ``averaged`` (the model card lists their runs)."""
+    if len(sources) < 2:
+        raise ValueError("average needs at least two checkpoints")
+    states = [read_checkpoint(path) for path in sources]
+    config = states[0]["model_config"]
+    for path, state in zip(sources[1:], states[1:], strict=True):
+        if state["model_config"] != config:
+            raise ValueError(
+                f"{path} has another architecture than {sources[0]}: only checkpoints of one "
+                "design can be averaged"
+            )
+    model = SDCNet(ModelConfig.from_dict(config))
+    weights = {
+        name: torch.stack([s["model"][name] for s in states]).mean(0)
+        if tensor.is_floating_point()
+        else tensor
+        for name, tensor in states[0]["model"].items()
+    }
+    load_weights(model, weights, sources[0])
+    members = [
+        {k: state[k] for k in PROVENANCE if k in state} | {"file": str(path)}
+        for path, state in zip(sources, states, strict=True)
+    ]
+    save_checkpoint(Path(target), model, averaged=members)
 
 
 def ship_checkpoint(source: str | Path, target: str | Path, zero: Sequence[str] = ()) -> None:

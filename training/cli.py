@@ -1,5 +1,5 @@
-"""``sdc-train``: fit SDCNet (or an ablation variant), copy a checkpoint to ship, calibrate its
-sigma. Evaluation is ``sdc-eval``'s."""
+"""``sdc-train``: fit SDCNet (or an ablation variant), copy a checkpoint to ship, average
+checkpoints, calibrate its sigma. Evaluation is ``sdc-eval``'s."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import get_args, get_type_hints
 
 from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
-from sdcnet.training.checkpoint import ship_checkpoint
+from sdcnet.training.checkpoint import average_checkpoints, ship_checkpoint
 from sdcnet.training.train import PRESETS, TrainConfig, Trainer, config_from_preset
 
 #: What a user's mistake raises (a missing or bad file, a bad value): one line, exit 2.
@@ -61,6 +61,12 @@ def cmd_ship(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_average(args: argparse.Namespace) -> int:
+    average_checkpoints(args.checkpoints, args.out)
+    print(f"wrote {args.out}: the mean of {len(args.checkpoints)} checkpoints' weights")
+    return 0
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from sdcnet.training.uncertainty import calibrate_checkpoint
 
@@ -95,6 +101,14 @@ def parser() -> argparse.ArgumentParser:
         "(depth = the plane fit alone) or refiner.correction (FSNet without its refiner)",
     )
     s.set_defaults(func=cmd_ship)
+
+    a = sub.add_parser(
+        "average",
+        help="the mean of checkpoints' weights (fine-tuned from one model: a model soup)",
+    )
+    a.add_argument("--checkpoints", nargs="+", required=True, metavar="CHECKPOINT")
+    a.add_argument("--out", required=True)
+    a.set_defaults(func=cmd_average)
 
     k = sub.add_parser(
         "calibrate", help="scale the depth's sigma to cover 68 %% of the errors on a split"

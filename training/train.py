@@ -34,6 +34,7 @@ from sdcnet.evaluation.scoring import (
 )
 from sdcnet.metrics import NAMES
 from sdcnet.training.checkpoint import (
+    PROVENANCE,
     load_weights,
     read_checkpoint,
     save_checkpoint,
@@ -65,8 +66,6 @@ class Segmenter(torch.nn.Module):
     ) -> torch.Tensor:
         return self.model.segment(gray, sparse, focal_px)
 
-
-PROVENANCE = ("hardware", "train_config", "dataset", "history", "parent", "segmentation_parent")
 
 PRESETS: dict[str, dict] = {
     # The paper's recipe (sec. V-A), for a GPU.
