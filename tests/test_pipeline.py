@@ -8,11 +8,13 @@ from sdcnet.anchoring import MAD_TO_STD, SHRINK
 from sdcnet.pipeline import (
     FIELD_EDGE_GROWTH,
     MAX_UPSAMPLE,
+    RETURN_REACH_PX,
     WORK_PIXELS,
     Region,
     complete,
     drop_specks,
     guided_probability,
+    mask_box,
     region_around,
     region_of_interest,
     resample_depth,
@@ -20,6 +22,7 @@ from sdcnet.pipeline import (
     resample_sparse,
     return_spacing,
     row_ends,
+    vouched_mask,
     working_grid,
 )
 
@@ -198,6 +201,29 @@ def test_the_edge_pixels_take_the_exact_nearest_source_pixel():
     np.testing.assert_array_equal(big[0, on_edge], expected[on_edge])
 
 
+@pytest.mark.parametrize(
+    ("shape", "footprint_m"), [((882, 588), 0.01), ((882, 588), float("inf")), ((300, 200), 0.01)]
+)
+def test_a_window_of_the_resampled_depth_is_that_window_of_the_whole_map(shape, footprint_m):
+    rng = np.random.default_rng(0)
+    depth = np.full((576, 384), 100.0, np.float32) + rng.random((576, 384), np.float32)
+    depth[200:400, 100:300] = 104.0  # depth edges: their pixels take the nearest source pixel
+    whole = resample_depth(depth, shape, footprint_m)
+    for window in (Region(0, shape[0], 0, shape[1]), Region(10, 290, 33, 197), Region(5, 5, 0, 9)):
+        np.testing.assert_array_equal(
+            resample_depth(depth, shape, footprint_m, window), whole[window.slices]
+        )
+
+
+def test_the_mask_box_holds_every_pixel_and_its_margin_within_the_mask():
+    mask = np.zeros((50, 60), bool)
+    assert mask_box(mask, 3).shape == (0, 0)
+    mask[10, 20] = mask[30, 58] = True
+    assert mask_box(mask) == Region(10, 31, 20, 59)
+    assert mask_box(mask, 2) == Region(8, 33, 18, 60)
+    assert mask_box(mask).within(Region(100, 150, 7, 67)) == Region(110, 131, 27, 66)
+
+
 def test_the_returns_spacing_comes_from_their_row_ends_in_any_order():
     rng = np.random.default_rng(0)
     rows, cols = rng.integers(0, 500, 4000), rng.integers(0, 700, 4000)
@@ -318,3 +344,27 @@ def test_drop_specks_keeps_exactly_the_components_a_return_lies_on(specks):
     expected = np.zeros_like(mask)
     expected[rows[hit], cols[hit]] = True
     assert np.array_equal(drop_specks(mask, sparse, reach_px=0), expected)
+
+
+@pytest.mark.parametrize("specks", [40, 400])
+def test_the_crop_is_vouched_for_within_its_mask_box_as_a_whole(specks):
+    """The frame-resolution vouching searches only the window around the mask: the same
+    components kept as ``drop_specks`` over the whole crop, returns just outside the mask's
+    box (within reach) included, and the probability of the dropped pixels set to 0."""
+    rng = np.random.default_rng(specks)
+    prob = np.zeros((300, 400), np.float32)
+    spots = rng.choice(60 * 80, specks, replace=False)
+    rows, cols = 50 + 3 * (spots // 80), 80 + 3 * (spots % 80)
+    prob[rows, cols] = 0.9
+    prob[100:150, 150:250] = 0.8  # the body
+    sparse = np.zeros(prob.shape, np.float32)
+    sparse[120, 200] = 100.0
+    hit = rng.random(specks) < 0.3
+    sparse[rows[hit] - 1, cols[hit]] = 90.0  # a return 1 px off a speck: within reach
+    prob[40, 60] = 0.9  # the mask box's corner: a speck vouched for from outside the box
+    sparse[39, 60] = 80.0
+    expected = drop_specks(prob > 0.5, sparse, RETURN_REACH_PX)
+    vouched = prob.copy()
+    mask = vouched_mask(vouched, sparse, 0.5)
+    assert np.array_equal(mask, expected) and 0 < mask.sum() < (prob > 0.5).sum()
+    np.testing.assert_array_equal(vouched, np.where(mask | (prob <= 0.5), prob, 0))
