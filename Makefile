@@ -94,7 +94,10 @@ docker-check: $(STAMP)
 ## (shipped) trains that FSNet 8 more epochs on one GPU (an H200 with 16 cores; 3 min), on
 ## the frames 16 cores rendered of 800 new models in 150 s (data/mixed-s5, seed 5: 1576 of the
 ## 4116 train and val frames; on another machine the set rendered in that time differs), its
-## depth networks and sigma the seventh's.
+## depth networks and sigma the seventh's. The ninth (shipped) is the mean of the eighth's
+## weights and two fine-tunes of its FSNet on one GPU, side by side on the frames 16 cores
+## rendered of 800 new models in 220 s (data/mixed-s7, seed 7: 2144 frames), at lr 3e-4 and
+## 1e-4, each stopped by its 270 s slot after 8 of its 10 epochs (`sdc-train average`).
 .PHONY: model
 PRESET ?= cpu
 PREVIOUS ?= e6a386e
@@ -119,6 +122,11 @@ GPU_WORKERS ?= 16
 FITS5 := $(VENV)/bin/sdc-train fit --data data/mixed-s5 --preset $(PRESET) --iou-loss 1 \
 	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
 	--batch-size 16 --samples-per-epoch 3000 --val-samples 150 --workers 10
+# the ninth: two fine-tunes of the eighth side by side on one GPU, averaged with it
+FITS7 := $(VENV)/bin/sdc-train fit --data data/mixed-s7 --preset $(PRESET) --iou-loss 1 \
+	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
+	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 7 \
+	--init-weights runs/eighth/shipped.pt --fsnet-epochs 10
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
@@ -165,7 +173,14 @@ model: $(STAMP)
 		--world mixed --seed 5 --only-splits train val --workers $(GPU_WORKERS) --quiet
 	$(VENV)/bin/sdc-data close data/mixed-s5
 	$(FITS5) --out runs/v11 --init-weights runs/v10/shipped.pt --fsnet-epochs 8 --lr 3e-4 --seed 11
-	$(VENV)/bin/sdc-train ship --checkpoint runs/v11/best_stage1.pt --out models/sdcnet.pt
+	$(VENV)/bin/sdc-train ship --checkpoint runs/v11/best_stage1.pt --out runs/eighth/shipped.pt
+	-timeout 220 $(VENV)/bin/sdc-data generate --out data/mixed-s7 --models 800 --views 6 \
+		--world mixed --seed 7 --only-splits train val --workers $(GPU_WORKERS) --quiet
+	$(VENV)/bin/sdc-data close data/mixed-s7
+	-timeout 270 $(FITS7) --out runs/v14 --lr 3e-4 --seed 11 & \
+		timeout 270 $(FITS7) --out runs/v15 --lr 1e-4 --seed 12; wait
+	$(VENV)/bin/sdc-train average --checkpoints runs/eighth/shipped.pt runs/v14/best_stage1.pt \
+		runs/v15/best_stage1.pt --out models/sdcnet.pt
 	$(MAKE) reports
 
 ## reports: evaluate the shipped checkpoint beside the previous model (git $(PREVIOUS), run by its
@@ -181,11 +196,11 @@ MESHES ?= ../shared/real-meshes
 CONDITIONS := paper earth sun-moon wide-multibeam flash docking narrow-far any
 $(THIRD_ONNX):
 	mkdir -p $(dir $@) && git show $(THIRD):models/sdcnet.onnx > $@
-# the seventh shipped model (git $(SEVENTH)), the one this model's FSNet was trained from
-SEVENTH ?= b849b94
-SEVENTH_ONNX := runs/seventh/seventh-model.onnx
-$(SEVENTH_ONNX):
-	mkdir -p $(dir $@) && git show $(SEVENTH):models/sdcnet.onnx > $@
+# the eighth shipped model (git $(EIGHTH)), the one this model averages with its fine-tunes
+EIGHTH ?= 165485f
+EIGHTH_ONNX := runs/eighth/eighth-model.onnx
+$(EIGHTH_ONNX):
+	mkdir -p $(dir $@) && git show $(EIGHTH):models/sdcnet.onnx > $@
 reports: $(STAMP) $(THIRD_ONNX)
 	$(VENV)/bin/sdc-data generate --out data/paper --models 126 --views 64 --size 1024 --seed 0 \
 		--only-splits test
@@ -221,9 +236,9 @@ reports: $(STAMP) $(THIRD_ONNX)
 ## bench: regenerate the benchmark tables and plots in docs/benchmarks/ (needs data/paper and
 ## data/robustness from `make reports`; FP16/INT8 variants are made in runs/variants, not shipped)
 .PHONY: bench
-bench: $(STAMP) $(THIRD_ONNX) $(SEVENTH_ONNX)
+bench: $(STAMP) $(THIRD_ONNX) $(EIGHTH_ONNX)
 	$(PY) -m benchmarks.pipeline_latency --onnx models/sdcnet.onnx --data data/robustness \
-		--beside $(SEVENTH_ONNX) $(THIRD_ONNX) --previous $(PREVIOUS)
+		--beside $(EIGHTH_ONNX) $(THIRD_ONNX) --previous $(PREVIOUS)
 	$(VENV)/bin/sdc-export --checkpoint models/sdcnet.pt --out runs/variants/sdcnet.onnx \
 		--variants fp16 int8 --calibration-data data/mixed
 	$(PY) -m benchmarks.model_latency --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx
