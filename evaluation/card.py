@@ -52,7 +52,7 @@ def _run_line(run: dict, number: dict[str, int]) -> str:
     minutes = sum(r.get("seconds", 0) for r in history) / 60
     epochs = [sum(1 for r in history if r["stage"] == s) for s in (1, 2)]
     parent = _parent(run)
-    start = f", from run {number[_key(parent)]}'s weights" if parent is not None else ""
+    start = f", from {_weights_of(parent, number)}'s weights" if parent is not None else ""
     return (
         f"`{run.get('train_config', {}).get('command', '?')}` on {run.get('hardware', '?')}"
         f"{start}: {epochs[0]} FSNet and {epochs[1]} FDCNet epochs up to the kept checkpoint, "
@@ -60,13 +60,25 @@ def _run_line(run: dict, number: dict[str, int]) -> str:
     )
 
 
+def _weights_of(state: dict, number: dict[str, int]) -> str:
+    """Whose weights a checkpoint holds, by the card's run numbers (``number``, by ``_key``):
+    ``run 3``, or for an average ``the mean of runs 3, 4, 5`` (an averaged member in
+    brackets)."""
+    if "averaged" not in state:
+        return f"run {number[_key(state)]}"
+    members = (
+        f"({_weights_of(m, number)})" if "averaged" in m else str(number[_key(m)])
+        for m in state["averaged"]
+    )
+    return "the mean of runs " + ", ".join(members)
+
+
 def _average_line(state: dict, number: dict[str, int]) -> list[str]:
     """The line that says which runs' weights an average's are the mean of (none otherwise)."""
     if "averaged" not in state:
         return []
-    members = ", ".join(str(number[_key(m)]) for m in state["averaged"])
     return [
-        f"- The weights are the mean of runs {members}'s (`sdc-train average`, a model soup: "
+        f"- The weights are {_weights_of(state, number)}'s (`sdc-train average`, a model soup: "
         "checkpoints fine-tuned from one model, averaged)."
     ]
 

@@ -16,8 +16,14 @@ import pytest
 import torch
 
 from sdcnet.dataset_format import SampleStore
+from sdcnet.evaluation.card import model_card
 from sdcnet.evaluation.cli import main as eval_main
-from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint, transplant_weights
+from sdcnet.training.checkpoint import (
+    PROVENANCE,
+    load_checkpoint,
+    save_checkpoint,
+    transplant_weights,
+)
 from sdcnet.training.cli import main as train_main
 from sdcnet.training.cli import parser as train_parser
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
@@ -195,6 +201,11 @@ def test_average_writes_the_mean_of_fine_tuned_weights_and_the_card_lists_their_
     # the fine-tune's parent is the first member: two runs, not three
     assert "2 run(s)" in text and "from run 1's weights" in text
     assert "the mean of runs 1, 2's" in text
+    # a run fine-tuned from the average: its members' runs, then it, started from their mean
+    tuned = {"train_config": {"command": "sdc-train fit --init-weights soup.pt"}, "history": []}
+    tuned["parent"] = {k: state[k] for k in PROVENANCE if k in state}
+    text = model_card(tuned, mean, [], "tuned")
+    assert "3 run(s)" in text and "from the mean of runs 1, 2's weights" in text
     other = tmp_path / "baseline.pt"
     save_checkpoint(other, build_model("baseline"))
     refused = ["--out", str(tmp_path / "refused.pt")]
