@@ -40,6 +40,24 @@ def test_back_projection_inverts_the_camera():
     np.testing.assert_array_equal(pixel_cols, cols)
 
 
+def test_back_projection_is_the_pinhole_formula_per_pixel_in_bands_of_any_size():
+    """Only the mask's box is visited, a band at a time: the points are still each pixel's
+    (x, y, z) computed in float64 and stored as float32, in row-major order."""
+    rng = np.random.default_rng(3)
+    depth = (50 + 100 * rng.random((90, 130))).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = 0
+    scattered = rng.random(depth.shape) < 0.3
+    scattered[:7] = scattered[:, :11] = False  # a box away from the frame's corner
+    for mask in (scattered, scattered[::2], np.eye(90, 130, 40, dtype=bool)):
+        d = depth[: mask.shape[0]] if mask.shape != depth.shape else depth
+        rows, cols = np.nonzero(mask & (d > 0))
+        z = d[rows, cols].astype(np.float64)
+        expected = np.stack([(cols - K.cx) * z / K.fx, (rows - K.cy) * z / K.fy, z], 1)
+        for band_pixels in (1, 500, 2**17):
+            points = back_project(d, mask, K, band_pixels)
+            np.testing.assert_array_equal(points, expected.astype(np.float32))
+
+
 def test_mask_pixels_are_numpys_nonzero_in_its_order():
     mask = np.random.default_rng(0).random((37, 53)) < 0.3
     for view in (mask, mask[5:30, 7:41], mask[::2, ::3], np.zeros((3, 4), bool)):
