@@ -61,7 +61,8 @@ def _frame_options() -> argparse.ArgumentParser:
         frame.add_argument(
             f"--{name}",
             type=float,
-            help="intrinsics, pixels (default: the service's camera's, else the model's, scaled)",
+            help="intrinsics, pixels (default: the service's camera's, else the model's, scaled; "
+            "a focal length alone keeps that camera's pixel aspect)",
         )
     frame.add_argument(
         "--depth-scale", type=float, help="metres per unit of a 16-bit PNG sparse map"

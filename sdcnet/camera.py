@@ -124,7 +124,8 @@ _Base = TypeVar("_Base", Intrinsics, "GivenIntrinsics")
 @dataclass(frozen=True)
 class GivenIntrinsics:
     """The pinhole values (pixels) a request gives, each optional: a value left out is the
-    default's (the service's camera, else its model's, at the frame's size), value by value."""
+    default's (the service's camera, else its model's, at the frame's size), value by value,
+    but for a focal length given alone (``over``)."""
 
     fx: float | None = None
     fy: float | None = None
@@ -150,8 +151,18 @@ class GivenIntrinsics:
         return len(self.pinhole_dict()) == len(PINHOLE_FIELDS)
 
     def over(self, base: _Base) -> _Base:
-        """``base`` with each value given here in place of its own."""
-        return replace(base, **self.pinhole_dict())
+        """``base`` with each value given here in place of its own; a focal length given
+        without the other keeps ``base``'s pixel aspect ratio (fy / fx, 1 for square pixels):
+        "fx 1400" describes a lens, and the default's other focal length, another lens's,
+        would stretch the cloud along one axis by their ratio (5.7 against the paper's camera
+        on a 1024 px frame)."""
+        given = self.pinhole_dict()
+        known = base.fx is not None and base.fy is not None
+        if known and "fx" in given and "fy" not in given:
+            given["fy"] = given["fx"] * base.fy / base.fx
+        elif known and "fy" in given and "fx" not in given:
+            given["fx"] = given["fy"] * base.fx / base.fy
+        return replace(base, **given)
 
 
 PAPER_CAMERA = CameraSpec()

@@ -181,7 +181,8 @@ class Completed:
 def request_intrinsics(default: Intrinsics, width: int, height: int, frame: Frame) -> Intrinsics:
     """The request's intrinsics; each value not given is the configured camera's
     (``frame.camera``, at the image's size), else the model's ``default`` scaled to the
-    image. 422 ``invalid_intrinsics`` for values that cannot describe the frame
+    image (a focal length given alone keeps that camera's pixel aspect:
+    ``GivenIntrinsics.over``). 422 ``invalid_intrinsics`` for values that cannot describe the frame
     (``sdcnet.camera.check_intrinsics``, the one check of every route)."""
     K = frame.intrinsics.over(frame.camera or default.scaled(width, height))
     try:

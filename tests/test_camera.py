@@ -34,12 +34,29 @@ def test_project_inverts_pixel_rays():
     np.testing.assert_allclose(pv, v)
 
 
+def test_a_focal_length_given_alone_keeps_the_defaults_pixel_aspect():
+    """fx alone (a careless client's "the focal length is 1400 px") is no anisotropic camera:
+    the other focal length follows at the default's ratio, not at the default lens's value."""
+    base = Intrinsics(1000.0, 1010.0, 511.5, 383.5, 1024, 768)
+    assert GivenIntrinsics(fx=2000.0).over(base) == Intrinsics(
+        2000.0, 2020.0, 511.5, 383.5, 1024, 768
+    )
+    assert GivenIntrinsics(fy=505.0, cx=500.0).over(base) == Intrinsics(
+        500.0, 505.0, 500.0, 383.5, 1024, 768
+    )
+    assert GivenIntrinsics(fx=1.0, fy=2.0).over(base).fy == 2.0  # both given: as given
+    square = PAPER_CAMERA.intrinsics().scaled(1024, 1024)
+    assert GivenIntrinsics(fx=1400.0).over(square).fy == pytest.approx(1400.0)
+    # over other given values without both focal lengths: value by value
+    assert GivenIntrinsics(fx=3.0).over(GivenIntrinsics(fy=4.0)) == GivenIntrinsics(fx=3.0, fy=4.0)
+
+
 def test_given_intrinsics_fill_in_value_by_value():
     K = PAPER_CAMERA.intrinsics().scaled(256, 256)
     given = GivenIntrinsics.from_dict({"fx": "900", "cy": 100, "cx": None, "width": 7})
     assert given == GivenIntrinsics(fx=900.0, cy=100.0)
     assert given.pinhole_dict() == {"fx": 900.0, "cy": 100.0}
-    assert given.over(K) == Intrinsics(900.0, K.fy, K.cx, 100.0, 256, 256)
+    assert given.over(K) == Intrinsics(900.0, 900.0 * K.fy / K.fx, K.cx, 100.0, 256, 256)
     assert GivenIntrinsics(cx=5.0).over(given) == GivenIntrinsics(fx=900.0, cx=5.0, cy=100.0)
     assert not given.whole and GivenIntrinsics.from_dict(K.as_dict()).whole
     assert Intrinsics(**K.as_dict()) == Intrinsics.from_matrix(K.matrix(), 256, 256) == K

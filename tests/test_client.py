@@ -319,7 +319,8 @@ def test_a_pairs_own_values_replace_the_command_lines_one_by_one(tmp_path):
     argv = ["infer", "g.png", "s.npy", "--fx", "900", "--fy", "910", "--depth-scale", "0.01"]
     defaults = frame_kwargs(parser().parse_args(argv))
     assert first.options(defaults) == {
-        "intrinsics": GivenIntrinsics(fx=500.0, fy=910.0, cy=60.5),
+        # fx alone: fy at the command line's aspect ratio, not its value
+        "intrinsics": GivenIntrinsics(fx=500.0, fy=500.0 * 910 / 900, cy=60.5),
         "max_sigma": None,  # and no depth scale: a .npy map holds metres
     }
     assert second.options(defaults) == {

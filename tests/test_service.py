@@ -239,6 +239,14 @@ def test_intrinsics_are_those_of_a_pinhole_of_the_frame_or_422(client):
         assert "px" in error["message"] or "principal point" in error["message"]
 
 
+def test_a_focal_length_sent_alone_brings_the_other_at_the_default_cameras_aspect(client):
+    """A careless client's "fx 1400" on its own: the answer's fy is 1400 (the model's camera
+    has square pixels), not the default lens's, whose ratio would stretch the cloud."""
+    for fields, fy in (({"fx": "1400"}, 1400.0), ({"fy": "900", "fx": "950"}, 900.0)):
+        meta = post(client, frame_files(), fields).json()["intrinsics"]
+        assert meta["fy"] == pytest.approx(fy) and meta["fx"] == float(fields["fx"])
+
+
 def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
     fields = {"fx": "2000", "fy": "2020", "cx": "100.5", "cy": "130", "outlier_removal": "true"}
     as_json = post(client, frame_files(), fields).json()
