@@ -16,7 +16,18 @@ module corrects the depth by its residuals at the returns (measured - predicted,
    the returns);
 2. the corrections are spread by a normalised Gaussian convolution (``sigma_px``
    from the returns' spacing): at a return the correction is mostly its own, between returns a
-   weighted mean of the near ones, and it fades to nothing a few ``sigma_px`` away from any.
+   weighted mean of the near ones, and it fades to nothing a few ``sigma_px`` away from any;
+3. where the surface missed its returns by far more than the noise (the local *misfit*, the
+   spread residuals' size, above ``UNRELIABLE_MISFIT_NOISES`` noise scales: a plane fitted
+   across a depth edge, a slope the few returns around it got wrong), the returns are the
+   better answer next to them: the depth goes linearly from the nearest return's at the
+   return to the corrected surface's ``TRUST_RETURN_KERNELS`` kernel widths away. A slope a
+   plane got wrong still tilts the corrected surface between its returns (the fill, which
+   repeats the nearest return, had the lower error within 3 px of the returns on the frames
+   of few or scattered returns); where the surface fits, nothing changes. Nor where the
+   nearest return lies across a depth edge (its depth steeper than
+   ``EDGE_FOOTPRINTS_PER_PX`` pixel footprints per pixel of the way from the surface): a
+   ramp there would put points between the two surfaces.
 
 Anchoring changes how far the depth can be trusted, and the returns say how good the network
 was on this frame, so the network's sigma is recombined with what they measured
@@ -54,6 +65,19 @@ SIGMA_BOUNDS_PX = (1.5, 6.0)
 SHRINK = 0.5
 #: Median absolute deviation -> standard deviation, for Gaussian noise.
 MAD_TO_STD = 1.4826
+
+#: Where the local misfit exceeds this many noise scales (``noise_m``, at least
+#: ``MIN_NOISE_M``) ...
+UNRELIABLE_MISFIT_NOISES = 3.0
+#: ... the depth goes from the nearest return's to the corrected surface's over this many
+#: kernel widths (``sigma_px``) from the return (docs/development.md, "Measurements").
+TRUST_RETURN_KERNELS = 2.0
+#: The smallest noise scale the misfit is compared with, metres (a frame whose residuals are
+#: all zero has no measured noise).
+MIN_NOISE_M = 1e-3
+#: A nearest return whose depth differs from the surface's by more than this many pixel
+#: footprints (depth / focal length) per pixel between them is across a depth edge.
+EDGE_FOOTPRINTS_PER_PX = 8.0
 
 #: ``anchored_sigma``'s coefficients (fit on validation frames of the mixed world and of the
 #: paper's camera: docs/development.md, "Measurements"): the network's sigma, rescaled by the
@@ -109,8 +133,10 @@ def anchor_to_returns(
 ) -> Anchored:
     """``depth`` (H, W metres) corrected by its residuals at the returns of ``sparse`` (H, W
     metres, 0 = none) that fall on ``mask`` (H, W bool, the spacecraft: returns off it are
-    not the depth's to agree with), spread with a Gaussian of ``sigma_px`` pixels; unchanged
-    (apart, disagreement, misfit and noise 0) without such returns. The correction covers the
+    not the depth's to agree with), spread with a Gaussian of ``sigma_px`` pixels, and
+    drawn to the nearest return's depth next to the returns where it missed them (step 3 of
+    the module's docstring); unchanged (apart, disagreement, misfit and noise 0) without such
+    returns. The correction covers the
     whole grid, so that resampling the mask to the frame never meets an uncorrected pixel at
     its border. ``focal_px``: the grid's focal length in its pixels, for ``apart_m``."""
     rows, cols = np.nonzero((sparse > 0) & mask & (depth > 0))
@@ -134,8 +160,14 @@ def anchor_to_returns(
     correction = reach * spread(local) / total
     misfit = spread(np.abs(local)) / total
     corrected = (depth + correction).astype(np.float32)
-    apart_m, nearest = nearest_return(sparse)
-    apart_m *= np.abs(corrected) / focal_px  # pixels -> metres
+    apart_px, nearest = nearest_return(sparse)
+    unreliable = misfit > UNRELIABLE_MISFIT_NOISES * max(noise_m, MIN_NOISE_M)
+    step_footprints = np.abs(corrected - nearest) * focal_px / np.maximum(np.abs(corrected), 1e-6)
+    same_surface = step_footprints <= EDGE_FOOTPRINTS_PER_PX * np.maximum(apart_px, 1.0)
+    towards_surface = np.minimum(apart_px / (TRUST_RETURN_KERNELS * sigma_px), 1.0)
+    trusted = nearest + (corrected - nearest) * towards_surface
+    corrected = np.where(unreliable & same_surface, trusted, corrected).astype(np.float32)
+    apart_m = apart_px * np.abs(corrected) / focal_px  # pixels -> metres
     disagreement_m = np.abs(corrected - nearest)
     return Anchored(corrected, apart_m, disagreement_m, misfit, noise_m, rows, cols, residual)
 

@@ -75,6 +75,28 @@ def test_the_lidar_noise_is_not_copied_into_a_surface_the_model_fits():
     assert np.abs(anchored - truth).mean() < 0.4 * copied  # a third of it at SHRINK 0.5
 
 
+def test_where_the_surface_missed_its_returns_the_returns_answer_next_to_them():
+    """Where a surface is off its returns by far more than the frame's noise (a slope the
+    plane fit got wrong, here a 30 cm ripple over a third of the panel), the depth goes
+    from the return's own at the return to the corrected surface two kernel widths away, as a
+    fill would next to the returns; where the surface fits, nothing moves."""
+    truth = tilted_plane()
+    cols = np.arange(SIZE, dtype=np.float32)[None, :]
+    ripple = np.where((cols >= 32) & (cols < 64), np.sin(cols / 1.3), 0.0)
+    predicted = (truth + 0.3 * ripple * np.ones((SIZE, 1))).astype(np.float32)
+    sparse = returns_of(truth)
+    anchored = anchor_to_returns(predicted, np.ones(truth.shape, bool), sparse, 2.0, FOCAL_PX)
+    at = sparse > 0
+    off = at & (np.abs(predicted - truth) > 0.03)
+    np.testing.assert_allclose(anchored.depth[off], truth[off], atol=1e-5)  # not shrunk
+    beside = np.roll(off, 1, axis=1)  # a pixel right of each: a quarter of the way out
+    # the return's residual spread onto its neighbour left 0.18 m there: the ripple differs
+    assert np.abs(anchored.depth - truth)[beside].mean() < 0.08
+    np.testing.assert_array_equal(anchored.depth[:, :16], truth[:, :16])  # the fitting part
+    nearest = nearest_return(sparse)[1]
+    np.testing.assert_allclose(anchored.disagreement_m, np.abs(anchored.depth - nearest))
+
+
 def test_without_returns_on_the_mask_the_depth_is_unchanged():
     truth = tilted_plane()
     mask = np.zeros(truth.shape, bool)
