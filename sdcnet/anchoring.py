@@ -162,14 +162,30 @@ def anchor_to_returns(
     corrected = (depth + correction).astype(np.float32)
     apart_px, nearest = nearest_return(sparse)
     unreliable = misfit > UNRELIABLE_MISFIT_NOISES * max(noise_m, MIN_NOISE_M)
-    step_footprints = np.abs(corrected - nearest) * focal_px / np.maximum(np.abs(corrected), 1e-6)
-    same_surface = step_footprints <= EDGE_FOOTPRINTS_PER_PX * np.maximum(apart_px, 1.0)
-    towards_surface = np.minimum(apart_px / (TRUST_RETURN_KERNELS * sigma_px), 1.0)
-    trusted = nearest + (corrected - nearest) * towards_surface
-    corrected = np.where(unreliable & same_surface, trusted, corrected).astype(np.float32)
+    corrected = returns_where_missed(corrected, unreliable, apart_px, nearest, sigma_px, focal_px)
     apart_m = apart_px * np.abs(corrected) / focal_px  # pixels -> metres
     disagreement_m = np.abs(corrected - nearest)
     return Anchored(corrected, apart_m, disagreement_m, misfit, noise_m, rows, cols, residual)
+
+
+def returns_where_missed(
+    surface: np.ndarray,
+    unreliable: np.ndarray,
+    apart_px: np.ndarray,
+    nearest: np.ndarray,
+    sigma_px: float,
+    focal_px: float,
+) -> np.ndarray:
+    """Step 3 of the module's docstring: on the ``unreliable`` pixels (h, w bool, where the
+    corrected ``surface`` (h, w metres) missed its returns), the depth from the ``nearest``
+    return's (metres, ``apart_px`` grid pixels away: ``nearest_return``) at the return to the
+    surface's ``TRUST_RETURN_KERNELS`` x ``sigma_px`` away, but not towards a return across a
+    depth edge (``EDGE_FOOTPRINTS_PER_PX``; ``focal_px``: the grid's focal length); float32."""
+    step_footprints = np.abs(surface - nearest) * focal_px / np.maximum(np.abs(surface), 1e-6)
+    same_surface = step_footprints <= EDGE_FOOTPRINTS_PER_PX * np.maximum(apart_px, 1.0)
+    towards_surface = np.minimum(apart_px / (TRUST_RETURN_KERNELS * sigma_px), 1.0)
+    ramp = nearest + (surface - nearest) * towards_surface
+    return np.where(unreliable & same_surface, ramp, surface).astype(np.float32)
 
 
 def nearest_return(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
