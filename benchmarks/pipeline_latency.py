@@ -44,8 +44,8 @@ def time_frames(
     pipeline and the back-projection, per model, after a warm-up. The models take turns frame
     by frame, so that a machine that slows down or speeds up weighs on each alike, and which
     of them goes first moves on with every frame: the first to complete a frame can pay for
-    memory the next ones find ready (a 2048 x 2048 frame's first paste-back faulted its
-    pages in for 15-34 ms)."""
+    memory the next ones find ready (a 2048 x 2048 frame's first sigma paste-back took 15-34
+    ms, the same copy 0.8 ms on the next frame)."""
     samples = [store.load(r) for r in store.records]
 
     def run(model: OnnxModel, sample) -> None:

@@ -136,9 +136,9 @@ def anchor_to_returns(
     not the depth's to agree with), spread with a Gaussian of ``sigma_px`` pixels, and
     drawn to the nearest return's depth next to the returns where it missed them (step 3 of
     the module's docstring); unchanged (apart, disagreement, misfit and noise 0) without such
-    returns. The correction covers the
-    whole grid, so that resampling the mask to the frame never meets an uncorrected pixel at
-    its border. ``focal_px``: the grid's focal length in its pixels, for ``apart_m``."""
+    returns. The correction covers the whole grid, so that resampling the mask to the frame
+    never meets an uncorrected pixel at its border. ``focal_px``: the grid's focal length in
+    its pixels, for ``apart_m``."""
     rows, cols = np.nonzero((sparse > 0) & mask & (depth > 0))
     if len(rows) == 0:
         nothing = np.zeros(depth.shape, np.float32)

@@ -486,8 +486,9 @@ def drop_specks(mask: np.ndarray, sparse: np.ndarray, reach_px: int) -> np.ndarr
         returns = cv2.dilate(returns, np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8))
     if count <= 256:
         # the usual frame: a histogram of the labels under the returns says which components
-        # hold one, and an 8-bit table lookup keeps them (a dense LIDAR's million returns
-        # gathered one by one took 9 ms of a 2048 px crop; the histogram takes 1)
+        # hold one, and an 8-bit table lookup keeps them (a dense LIDAR's 0.9M dilated return
+        # pixels found and gathered one by one took 8.4 of 12 ms on a 1536 x 1608 crop; the
+        # histogram takes 1.2)
         small = labels.astype(np.uint8)
         vouched = cv2.calcHist([small], [0], returns, [256], [0, 256]).ravel()[:count] > 0
         if vouched[1:].all():  # nothing to drop, no pass over the labels

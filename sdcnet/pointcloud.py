@@ -68,7 +68,8 @@ def back_project(
     """
     x0, y0, width, height = cv2.boundingRect(mask.view(np.uint8))
     box = (slice(y0, y0 + height), slice(x0, x0 + width))
-    valid = mask[box] & (depth[box] > 0)
+    depth = depth[box]
+    valid = mask[box] & (depth > 0)
     step = _bands(height, width, band_pixels).step
     counts = [int(np.count_nonzero(valid[y : y + step])) for y in range(0, height, step)]
     points = np.empty((sum(counts), 3), np.float32)
@@ -77,7 +78,7 @@ def back_project(
     at = 0
     for y, count in zip(range(0, height, step), counts, strict=True):
         keep = valid[y : y + step]
-        z = depth[box][y : y + step].astype(np.float64)
+        z = depth[y : y + step].astype(np.float64)
         band = points[at : at + count]
         band[:, 0] = (u * z / intrinsics.fx)[keep]
         band[:, 1] = (v[y : y + step] * z / intrinsics.fy)[keep]
