@@ -5,7 +5,8 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
 1. **crop**: the spacecraft's region, bounded by its LIDAR returns with a margin that follows
    their spacing (``region_of_interest``); the LIDAR never reaches the Earth or the stars.
    Where the returns end along a straight line with the image going on beyond it, the LIDAR's
-   field (narrower than the camera's) ended there, not the spacecraft: the crop grows past it;
+   field (narrower than the camera's) ended there, not the spacecraft: the crop grows past it
+   (``sdcnet.field_edges``);
 2. **resample** the crop to the working grid: about ``work_pixels`` pixels whatever the
    camera, the range and the size of the spacecraft in the frame (``working_grid``): a large
    crop is shrunk, a small one enlarged up to ``MAX_UPSAMPLE`` times, so every frame costs the
@@ -14,8 +15,10 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
 3. **infer**: the model, told the focal length in working pixels so that it can put its depths
    in units of the pixel footprint;
 4. **anchor** the depth to the returns it should agree with (``sdcnet.anchoring``);
-5. **paste back** at the frame's resolution: stars and noise dropped (``drop_specks``),
-   the probability resampled (onto a shrunk crop guided by the frame's own gray image:
+5. **paste back** at the frame's resolution: stars and noise dropped (``drop_specks``), the
+   mask grown past the LIDAR field's edge into what the image shows beyond it
+   (``grown_past_field``), the probability resampled (onto a shrunk crop guided by the
+   frame's own gray image:
    ``guided_probability``) and thresholded, the depth resampled without blending across
    depth edges (``resample_depth``), within the box holding the mask alone (``mask_box``).
    Outside the crop the answer is background.
@@ -35,6 +38,7 @@ import cv2
 import numpy as np
 
 from sdcnet.anchoring import anchor_to_returns, anchored_sigma, spreading_sigma_px
+from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
 from sdcnet.returns import scatter_nearest
 
 ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
@@ -136,15 +140,19 @@ def return_pixels(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def region_of_interest(gray: np.ndarray, sparse: np.ndarray) -> Region:
     """Region holding the spacecraft of a frame (gray (H, W) of any dtype, sparse (H, W)
     metres): ``spacecraft_region`` of its LIDAR returns."""
-    return spacecraft_region(*return_pixels(sparse), gray)
+    return spacecraft_region(*return_pixels(sparse), gray)[0]
 
 
-def spacecraft_region(rows: np.ndarray, cols: np.ndarray, gray: np.ndarray) -> Region:
+def spacecraft_region(
+    rows: np.ndarray, cols: np.ndarray, gray: np.ndarray
+) -> tuple[Region, FieldCuts | None]:
     """Region holding the spacecraft whose returns lie at pixel ``rows``, ``cols`` of the frame
-    ``gray``: ``region_around`` them, grown ``past_field_edges``."""
+    ``gray``: ``region_around`` them, grown ``past_field_edges`` where the LIDAR's field cut
+    the spacecraft; and those cuts (None where there is none)."""
     spacing = return_spacing(rows, cols)
     region = region_around(rows, cols, gray.shape, spacing)
-    return region if spacing is None else past_field_edges(region, rows, cols, gray, spacing)
+    cuts = None if spacing is None else field_cuts(rows, cols, gray, spacing)
+    return (region, None) if cuts is None else (past_field_edges(region, cuts, gray.shape), cuts)
 
 
 def region_around(
@@ -166,73 +174,26 @@ def region_around(
     return Region(y0, y1, x0, x1)
 
 
-#: A side of the returns' bounding box is the LIDAR field's edge when returns lie within one
-#: spacing of it along more than this share of its length, or along at least
-#: ``FIELD_EDGE_RUN_SPACINGS`` return spacings of it (a straight cut across the spacecraft,
-#: which may cross only part of the field: the outline of a spacecraft meets its box in a few
-#: points) ...
-FIELD_EDGE_COVER = 0.7
-FIELD_EDGE_RUN_SPACINGS = 15
-#: ... and the image between one return spacing beyond it (where a spacecraft that ends
-#: there can still reach, between two rows of returns) and this many, alongside those
-#: returns, is brighter, on average, than this share of the median gray at the returns: the
-#: spacecraft goes on past the field's edge (a straight panel edge against the black sky
-#: does not) ...
-FIELD_EDGE_BAND_SPACINGS = 3.0
-FIELD_EDGE_BRIGHTNESS = 0.25
-#: ... so the crop grows on that side by this share of the returns' extent across it.
+#: Where the LIDAR's field cut the spacecraft (``sdcnet.field_edges``), the crop grows on that
+#: side by this share of the returns' extent across it.
 FIELD_EDGE_GROWTH = 2.0
 
 
-def _covered(along: np.ndarray, spacing: float, length: int) -> float:
-    """Share of a side ``length`` pixels long that returns at positions ``along`` it (pixels)
-    cover, each one return ``spacing`` long."""
-    return np.unique((along // spacing).astype(np.intp)).size * spacing / length
-
-
-def past_field_edges(
-    region: Region, rows: np.ndarray, cols: np.ndarray, gray: np.ndarray, spacing: float
-) -> Region:
+def past_field_edges(region: Region, cuts: FieldCuts, frame_shape: tuple[int, int]) -> Region:
     """``region`` grown by ``FIELD_EDGE_GROWTH`` of the returns' extent on each side where the
-    LIDAR's field ended and the spacecraft did not: the returns (pixel ``rows``, ``cols``,
-    ``spacing`` pixels apart) stop along a straight line (``FIELD_EDGE_COVER``,
-    ``FIELD_EDGE_RUN_SPACINGS``) with the image bright beyond it (``FIELD_EDGE_BRIGHTNESS``).
-    A flash array's field is often a fraction of the camera's; the mask must still hold the
-    parts it did not reach. On the robustness suite this bought 0.2-0.8 points of IOU where
-    the LIDAR's field is narrower than the camera's and changed no frame of the paper's LIDAR;
-    counting a cut across part of the field too, 1.2 more on flash frames (docs/development.md,
-    "Measurements"). The cost per frame stays the budget's, a larger crop being seen at a
-    coarser scale."""
-    H, W = gray.shape
-    y0, y1, x0, x1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
-    h, w = y1 - y0, x1 - x0
-    if min(h, w) <= 2 * spacing:
-        return region
-    threshold = FIELD_EDGE_BRIGHTNESS * float(np.median(gray[rows, cols]))
-    near, far = round(spacing), max(round(FIELD_EDGE_BAND_SPACINGS * spacing), round(spacing) + 2)
-
-    def cut(along: np.ndarray, length: int, beyond: Callable[[int, int], np.ndarray]) -> bool:
-        """Whether returns at positions ``along`` a side ``length`` pixels long cut the
-        spacecraft there; ``beyond(lo, hi)``: the band past the side alongside [lo, hi)."""
-        if along.size == 0:
-            return False
-        covered = _covered(along, spacing, length)
-        if covered <= FIELD_EDGE_COVER and covered * length < FIELD_EDGE_RUN_SPACINGS * spacing:
-            return False
-        band = beyond(int(along.min()), int(along.max()) + 1)
-        return band.size > 0 and float(band.mean()) > threshold
-
-    top, bottom, left, right = region.y0, region.y1, region.x0, region.x1
-    above, below = gray[max(y0 - far, 0) : max(y0 - near, 0)], gray[y1 + near : y1 + far]
-    before, after = gray[:, max(x0 - far, 0) : max(x0 - near, 0)], gray[:, x1 + near : x1 + far]
-    if cut(cols[rows < y0 + spacing], w, lambda lo, hi: above[:, lo:hi]):
-        top = max(0, round(region.y0 - FIELD_EDGE_GROWTH * h))
-    if cut(cols[rows >= y1 - spacing], w, lambda lo, hi: below[:, lo:hi]):
-        bottom = min(H, round(region.y1 + FIELD_EDGE_GROWTH * h))
-    if cut(rows[cols < x0 + spacing], h, lambda lo, hi: before[lo:hi]):
-        left = max(0, round(region.x0 - FIELD_EDGE_GROWTH * w))
-    if cut(rows[cols >= x1 - spacing], h, lambda lo, hi: after[lo:hi]):
-        right = min(W, round(region.x1 + FIELD_EDGE_GROWTH * w))
+    LIDAR's field ended and the spacecraft did not (``cuts``: ``sdcnet.field_edges``), within
+    the frame (``frame_shape``). A flash array's field is often a fraction of the camera's;
+    the mask must still hold the parts it did not reach. On the robustness suite this bought
+    0.2-0.8 points of IOU where the LIDAR's field is narrower than the camera's and changed no
+    frame of the paper's LIDAR; counting a cut across part of the field too, 1.2 more on flash
+    frames (docs/development.md, "Measurements"). The cost per frame stays the budget's, a
+    larger crop being seen at a coarser scale."""
+    H, W = frame_shape
+    h, w = cuts.y1 - cuts.y0, cuts.x1 - cuts.x0
+    top = max(0, round(region.y0 - FIELD_EDGE_GROWTH * h)) if cuts.top else region.y0
+    bottom = min(H, round(region.y1 + FIELD_EDGE_GROWTH * h)) if cuts.bottom else region.y1
+    left = max(0, round(region.x0 - FIELD_EDGE_GROWTH * w)) if cuts.left else region.x0
+    right = min(W, round(region.x1 + FIELD_EDGE_GROWTH * w)) if cuts.right else region.x1
     return Region(top, bottom, left, right)
 
 
@@ -553,12 +514,15 @@ def on_mask(window: np.ndarray, mask: np.ndarray, box: Region) -> np.ndarray:
 @dataclass(frozen=True)
 class WorkingInputs:
     """One frame's crop on its working grid, as the network takes it: gray float32 (h, w) in
-    [0, 1], sparse float32 (h, w) metres, the focal length in working pixels."""
+    [0, 1], sparse float32 (h, w) metres, the focal length in working pixels; and where the
+    LIDAR's field cut the spacecraft (frame pixels; None where it did not, or where the crop
+    was given)."""
 
     gray: np.ndarray
     sparse: np.ndarray
     focal_px: float
     grid: WorkingGrid
+    cuts: FieldCuts | None = None
 
 
 def working_inputs(
@@ -577,7 +541,9 @@ def working_inputs(
     if not (math.isfinite(focal_px) and focal_px > 0):
         raise ValueError(f"focal_px must be a positive number of pixels, got {focal_px}")
     rows, cols = return_pixels(sparse)
-    region = spacecraft_region(rows, cols, gray) if region is None else region
+    cuts = None
+    if region is None:
+        region, cuts = spacecraft_region(rows, cols, gray)
     grid = working_grid(region, gray.shape, stride, work_pixels)
     g = grid.region
     inside = (rows >= g.y0) & (rows < g.y1) & (cols >= g.x0) & (cols < g.x1)
@@ -587,6 +553,7 @@ def working_inputs(
         place_returns(rows - g.y0, cols - g.x0, sparse[rows, cols], g.shape, grid.shape),
         focal_px * grid.scale[1],
         grid,
+        cuts,
     )
 
 
@@ -600,6 +567,25 @@ def run_model(model: ModelFn, inputs: WorkingInputs) -> tuple[np.ndarray, ...]:
     )
     depth, prob, *sigma = (o[0, 0] for o in outputs)
     return depth, prob, (sigma[0] if sigma else None)
+
+
+def past_the_field(
+    kept: np.ndarray, prob: np.ndarray, inputs: WorkingInputs, gray: np.ndarray
+) -> np.ndarray:
+    """The working grid's mask ``kept`` grown past the sides where the LIDAR's field cut the
+    spacecraft (``inputs.cuts``) into what the image shows beyond them (``grown_past_field``),
+    where the frame ``gray``'s sky is dark (``sky_is_dark``); the grown pixels' probability
+    ``prob`` (h, w) set to 1 in place."""
+    grid, cuts = inputs.grid, inputs.cuts
+    beyond = cuts.beyond((grid.region.y0, grid.region.x0), grid.scale, kept.shape)
+    grown = grown_past_field(kept, inputs.gray, inputs.sparse, beyond)
+    region = grid.region
+    if grown is kept or not sky_is_dark(
+        gray, cuts, grown, (region.y0, region.y1, region.x0, region.x1)
+    ):
+        return kept
+    prob[grown & ~kept] = 1.0
+    return grown
 
 
 def complete(
@@ -619,6 +605,8 @@ def complete(
     depth_w, prob_w, sigma_w = run_model(model, inputs)
     kept = drop_specks(prob_w > threshold, inputs.sparse, RETURN_REACH_PX)
     prob_w = np.where(kept | (prob_w <= threshold), prob_w, 0.0).astype(np.float32)
+    if inputs.cuts is not None:
+        kept = past_the_field(kept, prob_w, inputs, gray)
     rows, cols = return_pixels(inputs.sparse)
     spread_px = spreading_sigma_px(return_spacing(rows, cols), 1.0 / grid.scale[1])
     anchored = anchor_to_returns(
