@@ -134,17 +134,22 @@ def grown_past_field(
     if at_returns.size == 0 or not mask.any():
         return mask
     bright = gray > FIELD_EDGE_BRIGHTNESS * float(np.median(at_returns))
-    candidates = (bright & beyond) | mask
-    count, labels = cv2.connectedComponents(candidates.view(np.uint8), connectivity=8)
-    joined = np.zeros(count, bool)
-    joined[labels[mask]] = True
-    joined[0] = False
-    grown = joined[labels]
+    grown = joined_to(mask, bright & beyond)
     return mask if np.count_nonzero(grown) == np.count_nonzero(mask) else grown
 
 
-#: ``sky_is_dark`` looks at every this-many-th pixel of the frame along rows and columns,
-#: at least: a share of the frame needs no more than about ``SKY_SAMPLES`` pixels.
+def joined_to(mask: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """``mask`` (bool (h, w)) with the ``candidates`` (bool (h, w)) joined to it through
+    candidates (8-connected)."""
+    count, labels = cv2.connectedComponents((candidates | mask).view(np.uint8), connectivity=8)
+    joined = np.zeros(count, bool)
+    joined[labels[mask]] = True
+    joined[0] = False
+    return joined[labels]
+
+
+#: ``sky_is_dark`` reads a regular sample of about this many of the frame's pixels: a share of
+#: the frame needs no more, whatever its size.
 SKY_SAMPLES = 256 * 256
 
 
@@ -167,12 +172,6 @@ def sky_is_dark(
         )
         mask[y0:y1, x0:x1] = small.view(bool)
     beyond = cuts.beyond((0, 0), (1 / step, 1 / step), bright.shape)
-    count, labels = cv2.connectedComponents(
-        ((bright & beyond) | mask).view(np.uint8), connectivity=8
-    )
-    joined = np.zeros(count, bool)
-    joined[labels[mask]] = True
-    joined[0] = False
-    background = ~joined[labels]
+    background = ~joined_to(mask, bright & beyond)
     loose = np.count_nonzero(bright & background)
     return loose <= LOOSE_BRIGHT_SHARE * np.count_nonzero(background)
