@@ -124,17 +124,13 @@ def field_cuts(
 
 
 def grown_past_field(
-    mask: np.ndarray, gray: np.ndarray, sparse: np.ndarray, beyond: np.ndarray
+    mask: np.ndarray, gray: np.ndarray, bright: float, beyond: np.ndarray
 ) -> np.ndarray:
     """``mask`` (bool (h, w)) grown by the pixels ``beyond`` the field's cut sides (bool (h,
-    w): ``FieldCuts.beyond``) brighter than ``FIELD_EDGE_BRIGHTNESS`` of the median ``gray``
-    at the returns of ``sparse`` (metres, 0 = none) and joined to the mask through such
-    pixels (8-connected); ``mask`` itself where nothing joins it."""
-    at_returns = gray[sparse > 0]
-    if at_returns.size == 0 or not mask.any():
-        return mask
-    bright = gray > FIELD_EDGE_BRIGHTNESS * float(np.median(at_returns))
-    grown = joined_to(mask, bright & beyond)
+    w): ``FieldCuts.beyond``) where ``gray`` (h, w) is above ``bright`` (``FieldCuts.bright``
+    in ``gray``'s units), joined to the mask through such pixels (8-connected); ``mask``
+    itself where nothing joins it."""
+    grown = joined_to(mask, (gray > bright) & beyond)
     return mask if np.count_nonzero(grown) == np.count_nonzero(mask) else grown
 
 

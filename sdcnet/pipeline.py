@@ -244,13 +244,18 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+def gray_full_scale(dtype: np.dtype) -> float:
+    """The gray level of a full-scale pixel of a uint8 or uint16 image."""
+    if dtype == np.uint8:
+        return 255.0
+    if dtype == np.uint16:
+        return 65535.0
+    raise TypeError(f"gray must be uint8 or uint16, got {dtype}")
+
+
 def normalise_gray(gray: np.ndarray) -> np.ndarray:
     """uint8 or uint16 gray image -> float32 in [0, 1] (the model's input convention)."""
-    if gray.dtype == np.uint8:
-        return gray.astype(np.float32) / 255.0
-    if gray.dtype == np.uint16:
-        return gray.astype(np.float32) / 65535.0
-    raise TypeError(f"gray must be uint8 or uint16, got {gray.dtype}")
+    return gray.astype(np.float32) / gray_full_scale(gray.dtype)
 
 
 def resample_sparse(sparse: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -577,9 +582,10 @@ def past_the_field(
     where the frame ``gray``'s sky is dark (``sky_is_dark``); the grown pixels' probability
     ``prob`` (h, w) set to 1 in place."""
     grid, cuts = inputs.grid, inputs.cuts
-    beyond = cuts.beyond((grid.region.y0, grid.region.x0), grid.scale, kept.shape)
-    grown = grown_past_field(kept, inputs.gray, inputs.sparse, beyond)
     region = grid.region
+    beyond = cuts.beyond((region.y0, region.x0), grid.scale, kept.shape)
+    bright = cuts.bright / gray_full_scale(gray.dtype)  # in the working grid's units
+    grown = grown_past_field(kept, inputs.gray, bright, beyond)
     if grown is kept or not sky_is_dark(
         gray, cuts, grown, (region.y0, region.y1, region.x0, region.x1)
     ):

@@ -85,16 +85,15 @@ def test_only_bright_pixels_joined_to_the_mask_are_grown():
     gray = np.zeros((50, 60), np.float32)
     gray[10:20, 5:55] = 1.0  # a panel across the whole grid
     gray[30:35, 40:45] = 1.0  # a bright speck beyond, apart from it
-    sparse = np.zeros_like(gray)
-    sparse[12:18:3, 5:25:3] = 80.0
+    bright = 0.25  # a quarter of the gray at the returns
     mask = np.zeros(gray.shape, bool)
     mask[10:20, 5:32] = True  # the network's mask reaches a little past the returns
     beyond = np.zeros(gray.shape, bool)
     beyond[:, 30:] = True
-    grown = grown_past_field(mask, gray, sparse, beyond)
+    grown = grown_past_field(mask, gray, bright, beyond)
     assert grown[10:20, 5:55].all() and not grown[30:35].any()
     assert np.count_nonzero(grown) == 10 * 50, "nothing dark is grown"
-    assert grown_past_field(mask, gray, sparse, np.zeros_like(beyond)) is mask, "no zone"
+    assert grown_past_field(mask, gray, bright, np.zeros_like(beyond)) is mask, "no zone"
     gray[10:20, 27:30] = 0.0
     mask[10:20, 27:32] = False  # a dark gap between the mask and the panel: nothing joins
-    assert grown_past_field(mask, gray, sparse, beyond) is mask
+    assert grown_past_field(mask, gray, bright, beyond) is mask
