@@ -146,8 +146,7 @@ def anchor_to_returns(
     residual = sparse[rows, cols] - depth[rows, cols]
     noise_m = MAD_TO_STD * float(np.median(np.abs(residual)))
     local = np.sign(residual) * np.maximum(np.abs(residual) - SHRINK * noise_m, 0.0)
-    size = 2 * math.ceil(2 * sigma_px) + 1
-    centre = float(cv2.getGaussianKernel(size, sigma_px)[size // 2, 0]) ** 2
+    size, centre = gaussian_kernel(sigma_px)
 
     def spread(values: np.ndarray) -> np.ndarray:
         grid = np.zeros(depth.shape, np.float32)
@@ -166,6 +165,13 @@ def anchor_to_returns(
     apart_m = apart_px * np.abs(corrected) / focal_px  # pixels -> metres
     disagreement_m = np.abs(corrected - nearest)
     return Anchored(corrected, apart_m, disagreement_m, misfit, noise_m, rows, cols, residual)
+
+
+def gaussian_kernel(sigma_px: float) -> tuple[int, float]:
+    """The side (pixels, 2 sigma each way) of a 2-D Gaussian kernel of ``sigma_px`` pixels and
+    its peak: ones at isolated pixels, blurred with it and divided by the peak, are 1 there."""
+    size = 2 * math.ceil(2 * sigma_px) + 1
+    return size, float(cv2.getGaussianKernel(size, sigma_px)[size // 2, 0]) ** 2
 
 
 def returns_where_missed(

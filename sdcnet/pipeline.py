@@ -14,7 +14,8 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    across;
 3. **infer**: the model, told the focal length in working pixels so that it can put its depths
    in units of the pixel footprint;
-4. **anchor** the depth to the returns it should agree with (``sdcnet.anchoring``);
+4. **anchor** the depth to the returns it should agree with (``sdcnet.anchoring``), and
+   smooth the surface between them, edge-aware, for its normals (``sdcnet.surface``);
 5. **paste back** at the frame's resolution: stars and noise dropped (``drop_specks``), the
    mask grown past the LIDAR field's edge into what the image shows beyond it
    (``grown_past_field``), the probability resampled (onto a shrunk crop guided by the
@@ -40,6 +41,7 @@ import numpy as np
 from sdcnet.anchoring import anchor_to_returns, anchored_sigma, spreading_sigma_px
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
 from sdcnet.returns import scatter_nearest
+from sdcnet.surface import smoothed_between_returns
 
 ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
 
@@ -605,7 +607,8 @@ def complete(
 ) -> Completion:
     """Run ``model`` on the spacecraft's region of one frame, resampled to its working grid
     (``working_inputs``), anchor its depth to the returns (``anchor_to_returns``) and its
-    sigma with it (``anchored_sigma``), and paste the answer back at the frame's resolution."""
+    sigma with it (``anchored_sigma``), smooth the surface between the returns
+    (``smoothed_between_returns``), and paste the answer back at the frame's resolution."""
     inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels)
     grid = inputs.grid
     depth_w, prob_w, sigma_w = run_model(model, inputs)
@@ -615,8 +618,10 @@ def complete(
         kept = past_the_field(kept, prob_w, inputs, gray)
     rows, cols = return_pixels(inputs.sparse)
     spread_px = spreading_sigma_px(return_spacing(rows, cols), 1.0 / grid.scale[1])
-    anchored = anchor_to_returns(
-        depth_w, prob_w > threshold, inputs.sparse, spread_px, inputs.focal_px
+    mask_w = prob_w > threshold
+    anchored = anchor_to_returns(depth_w, mask_w, inputs.sparse, spread_px, inputs.focal_px)
+    surface = smoothed_between_returns(
+        anchored.depth, mask_w, anchored.rows, anchored.cols, inputs.focal_px
     )
     returns = inputs.sparse[rows, cols]
     footprint = float(returns.mean()) / inputs.focal_px if returns.size else 1.0
@@ -634,7 +639,7 @@ def complete(
     at = box.within(grid.region)
     mask = np.zeros(gray.shape, bool)
     mask[at.slices] = mask_crop[box.slices]
-    depth = on_mask(resample_depth(anchored.depth, shape, footprint, box), mask, at)
+    depth = on_mask(resample_depth(surface, shape, footprint, box), mask, at)
     sigma = None
     if sigma_w is not None:
         sigma_box = resample_depth(anchored_sigma(sigma_w, anchored), shape, math.inf, box)

@@ -1,0 +1,64 @@
+"""The surface between the returns, smoothed for its normals.
+
+Anchoring (``sdcnet.anchoring``) corrects the network's depth by its residuals at the returns,
+spread by a Gaussian a return spacing wide: between the returns that leaves a ripple of
+centimetres, one bump per return, and the normals a point cloud is registered and inspected
+by tilt with every bump (a normal's error grows with the slope of the ripple, not with its
+height: a depth MAE barely sees it). An edge-aware smoothing of the anchored depth on the
+working grid takes the ripple out without blurring one part into the next:
+
+- a bilateral filter, ``WINDOW_PX`` working pixels wide, whose range sigma is
+  ``RANGE_FOOTPRINTS`` pixel footprints (the depth's median on the mask / the focal length,
+  metres): neighbours further apart in depth than a few footprints lie across a depth edge
+  (a panel in front of the bus) and are not averaged;
+- blended back to the anchored depth at the returns themselves (a Gaussian of
+  ``KEEP_RETURN_PX`` working pixels around each): next to a return the measurement is the
+  best answer there is, and the smoothing would average it with the surface around it.
+
+Measured on the robustness suite and the real spacecraft (docs/development.md,
+"Measurements"): the mean normal error 1-1.4 degrees lower, the same-pixel depth MAE a
+millimetre lower, the 0-3 px band within 1.5 mm; about 2 ms on a 512 x 512 grid.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from sdcnet.anchoring import gaussian_kernel
+
+#: The bilateral filter's window, working pixels (its spatial sigma is half of it) ...
+WINDOW_PX = 9
+#: ... and its range sigma, in pixel footprints (depth / focal length).
+RANGE_FOOTPRINTS = 8.0
+#: At a return the anchored depth is kept, fading into the smoothed one by a Gaussian of
+#: this many working pixels.
+KEEP_RETURN_PX = 1.0
+
+
+def smoothed_between_returns(
+    depth: np.ndarray, mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, focal_px: float
+) -> np.ndarray:
+    """``depth`` (h, w metres, anchored) smoothed edge-aware on ``mask`` (h, w bool), kept at
+    the returns at pixels ``rows``, ``cols`` (see the module's docstring); the grid's focal
+    length ``focal_px`` (its pixels) sets the range sigma. float32 (h, w); off the mask, and
+    on an empty mask, the depth as it was."""
+    if not mask.any():
+        return depth
+    footprint_m = float(np.median(depth[mask])) / focal_px
+    smooth = cv2.bilateralFilter(depth, WINDOW_PX, RANGE_FOOTPRINTS * footprint_m, WINDOW_PX / 2)
+    keep = return_weight(rows, cols, depth.shape, KEEP_RETURN_PX)
+    blended = smooth + keep * (depth - smooth)
+    return np.where(mask, blended, depth).astype(np.float32)
+
+
+def return_weight(
+    rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int], sigma_px: float
+) -> np.ndarray:
+    """1 at the pixels (``rows``, ``cols``), fading with a Gaussian of ``sigma_px`` pixels to 0
+    away from them (the nearer returns' Gaussians summed, capped at 1): float32 ``shape``."""
+    size, peak = gaussian_kernel(sigma_px)
+    at_returns = np.zeros(shape, np.float32)
+    at_returns[rows, cols] = 1.0
+    spread = cv2.GaussianBlur(at_returns, (size, size), sigma_px, borderType=cv2.BORDER_CONSTANT)
+    return np.minimum(spread / peak, 1.0)
