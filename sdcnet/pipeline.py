@@ -620,11 +620,11 @@ def complete(
     spread_px = spreading_sigma_px(return_spacing(rows, cols), 1.0 / grid.scale[1])
     mask_w = prob_w > threshold
     anchored = anchor_to_returns(depth_w, mask_w, inputs.sparse, spread_px, inputs.focal_px)
-    surface = smoothed_between_returns(
-        anchored.depth, mask_w, anchored.rows, anchored.cols, inputs.focal_px
-    )
     returns = inputs.sparse[rows, cols]
     footprint = float(returns.mean()) / inputs.focal_px if returns.size else 1.0
+    surface = smoothed_between_returns(
+        anchored.depth, mask_w, anchored.rows, anchored.cols, footprint
+    )
     shape = grid.region.shape
     if grid.scale[0] < 1.0:  # a shrunk crop: its outline from the frame's own gray image
         crop = grid.region.slices

@@ -8,7 +8,7 @@ height: a depth MAE barely sees it). An edge-aware smoothing of the anchored dep
 working grid takes the ripple out without blurring one part into the next:
 
 - a bilateral filter, ``WINDOW_PX`` working pixels wide, whose range sigma is
-  ``RANGE_FOOTPRINTS`` pixel footprints (the depth's median on the mask / the focal length,
+  ``RANGE_FOOTPRINTS`` pixel footprints (the returns' mean depth / the focal length,
   metres): neighbours further apart in depth than a few footprints lie across a depth edge
   (a panel in front of the bus) and are not averaged;
 - blended back to the anchored depth at the returns themselves (a Gaussian of
@@ -37,19 +37,35 @@ KEEP_RETURN_PX = 1.0
 
 
 def smoothed_between_returns(
-    depth: np.ndarray, mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, focal_px: float
+    depth: np.ndarray, mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, footprint_m: float
 ) -> np.ndarray:
     """``depth`` (h, w metres, anchored) smoothed edge-aware on ``mask`` (h, w bool), kept at
-    the returns at pixels ``rows``, ``cols`` (see the module's docstring); the grid's focal
-    length ``focal_px`` (its pixels) sets the range sigma. float32 (h, w); off the mask, and
-    on an empty mask, the depth as it was."""
-    if not mask.any():
+    the returns at pixels ``rows``, ``cols`` (see the module's docstring); ``footprint_m``: a
+    pixel's footprint on the spacecraft (metres, depth / focal length), the range sigma's
+    unit. float32 (h, w); off the mask, and on an empty mask, the depth as it was. Only the
+    mask's box, grown by the window's reach, is filtered: the same answer on the mask."""
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    if w == 0:
         return depth
-    footprint_m = float(np.median(depth[mask])) / focal_px
-    smooth = cv2.bilateralFilter(depth, WINDOW_PX, RANGE_FOOTPRINTS * footprint_m, WINDOW_PX / 2)
-    keep = return_weight(rows, cols, depth.shape, KEEP_RETURN_PX)
-    blended = smooth + keep * (depth - smooth)
-    return np.where(mask, blended, depth).astype(np.float32)
+    reach = WINDOW_PX // 2
+    box = (
+        slice(max(y - reach, 0), min(y + h + reach, mask.shape[0])),
+        slice(max(x - reach, 0), min(x + w + reach, mask.shape[1])),
+    )
+    window = depth[box]
+    smooth = cv2.bilateralFilter(window, WINDOW_PX, RANGE_FOOTPRINTS * footprint_m, WINDOW_PX / 2)
+    inside = (
+        (rows >= box[0].start)
+        & (rows < box[0].stop)
+        & (cols >= box[1].start)
+        & (cols < box[1].stop)
+    )
+    keep = return_weight(
+        rows[inside] - box[0].start, cols[inside] - box[1].start, window.shape, KEEP_RETURN_PX
+    )
+    out = depth.copy()
+    out[box] = np.where(mask[box], smooth + keep * (window - smooth), window)
+    return out
 
 
 def return_weight(
