@@ -302,7 +302,9 @@ def test_batch_of_a_manifest_and_of_a_dataset_split(url, frame_files, tiny_model
     store = SampleStore(dataset)
     sample = store.load(store.split("test")[0])
     model = OnnxModel(tiny_model_path, threads=1)  # the service's model, in process
-    answer = complete(model.run, sample.gray, sample.sparse, 500.0, model.stride)
+    height, width = sample.gray.shape  # no intrinsics sent: the model's, scaled to the frame
+    fx = model.info.intrinsics.scaled(width, height).fx
+    answer = complete(model.run, sample.gray, sample.sparse, fx, model.stride)
     depth = np.load(out / test_ids[0] / "depth.npy")
     assert np.count_nonzero(depth) > 0
     np.testing.assert_allclose(depth, answer.depth, atol=1e-4)
