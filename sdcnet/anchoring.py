@@ -146,12 +146,10 @@ def anchor_to_returns(
     residual = sparse[rows, cols] - depth[rows, cols]
     noise_m = MAD_TO_STD * float(np.median(np.abs(residual)))
     local = np.sign(residual) * np.maximum(np.abs(residual) - SHRINK * noise_m, 0.0)
-    size, centre = gaussian_kernel(sigma_px)
+    _, centre = gaussian_kernel(sigma_px)
 
     def spread(values: np.ndarray) -> np.ndarray:
-        grid = np.zeros(depth.shape, np.float32)
-        grid[rows, cols] = values
-        return cv2.GaussianBlur(grid, (size, size), sigma_px, borderType=cv2.BORDER_CONSTANT)
+        return spread_at(rows, cols, values, depth.shape, sigma_px)
 
     count = spread(np.ones(len(rows), np.float32))
     total = np.maximum(count, 1e-12)
@@ -172,6 +170,18 @@ def gaussian_kernel(sigma_px: float) -> tuple[int, float]:
     its peak: ones at isolated pixels, blurred with it and divided by the peak, are 1 there."""
     size = 2 * math.ceil(2 * sigma_px) + 1
     return size, float(cv2.getGaussianKernel(size, sigma_px)[size // 2, 0]) ** 2
+
+
+def spread_at(
+    rows: np.ndarray, cols: np.ndarray, values: np.ndarray, shape: tuple[int, int], sigma_px: float
+) -> np.ndarray:
+    """``values`` at the pixels (``rows``, ``cols``) of a grid of ``shape``, 0 elsewhere,
+    blurred with the Gaussian kernel of ``sigma_px`` pixels (``gaussian_kernel``; nothing
+    beyond the grid's border): float32 ``shape``."""
+    size, _ = gaussian_kernel(sigma_px)
+    grid = np.zeros(shape, np.float32)
+    grid[rows, cols] = values
+    return cv2.GaussianBlur(grid, (size, size), sigma_px, borderType=cv2.BORDER_CONSTANT)
 
 
 def returns_where_missed(

@@ -18,7 +18,7 @@ working grid takes the ripple out without blurring one part into the next:
   best answer there is, and the smoothing would average it with the surface around it.
 
 Measured on the robustness suite and the real spacecraft (docs/development.md,
-"Measurements"): the mean normal error 1-1.4 degrees lower, the same-pixel depth MAE a
+"Measurements"): the mean normal error 0.9-1.4 degrees lower, the same-pixel depth MAE a
 millimetre lower, the 0-3 px band within 1.2 mm; about 2 ms on a 512 x 512 grid.
 """
 
@@ -27,7 +27,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from sdcnet.anchoring import gaussian_kernel
+from sdcnet.anchoring import gaussian_kernel, spread_at
 
 #: The bilateral filter's window, working pixels (its spatial sigma is half of it) ...
 WINDOW_PX = 9
@@ -56,15 +56,7 @@ def smoothed_between_returns(
     )
     window = depth[box]
     smooth = cv2.bilateralFilter(window, WINDOW_PX, RANGE_FOOTPRINTS * footprint_m, WINDOW_PX / 2)
-    inside = (
-        (rows >= box[0].start)
-        & (rows < box[0].stop)
-        & (cols >= box[1].start)
-        & (cols < box[1].stop)
-    )
-    keep = return_weight(
-        rows[inside] - box[0].start, cols[inside] - box[1].start, window.shape, KEEP_RETURN_PX
-    )
+    keep = return_weight(rows, cols, depth.shape, KEEP_RETURN_PX)[box]
     out = depth.copy()
     out[box] = np.where(mask[box], smooth + keep * (window - smooth), window)
     return out
@@ -75,8 +67,6 @@ def return_weight(
 ) -> np.ndarray:
     """1 at the pixels (``rows``, ``cols``), fading with a Gaussian of ``sigma_px`` pixels to 0
     away from them (the nearer returns' Gaussians summed, capped at 1): float32 ``shape``."""
-    size, peak = gaussian_kernel(sigma_px)
-    at_returns = np.zeros(shape, np.float32)
-    at_returns[rows, cols] = 1.0
-    spread = cv2.GaussianBlur(at_returns, (size, size), sigma_px, borderType=cv2.BORDER_CONSTANT)
-    return np.minimum(spread / peak, 1.0)
+    _, peak = gaussian_kernel(sigma_px)
+    ones = np.ones(len(rows), np.float32)
+    return np.minimum(spread_at(rows, cols, ones, shape, sigma_px) / peak, 1.0)
