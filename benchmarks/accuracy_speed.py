@@ -39,7 +39,7 @@ def measure(method: Method, store: SampleStore, records: list[dict]) -> tuple[Me
     for record in records:
         sample = store.load(record)
         start = time.perf_counter()
-        depth, mask, _ = method(sample)
+        depth, mask = method(sample)[:2]
         times.append((time.perf_counter() - start) * 1000)
         table.add(frame_metrics(depth, mask, sample.depth))
     return table, statistics.median(times)

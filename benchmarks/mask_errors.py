@@ -38,7 +38,7 @@ def frame_rows(checkpoint: Path, store: SampleStore, records: list[dict]) -> lis
     rows = []
     for record in tqdm(records, desc=checkpoint.name, unit="img", leave=False):
         sample = store.load(record)
-        depth, mask, _ = method(sample)
+        depth, mask = method(sample)[:2]
         rows.append(
             {
                 "foreground_px": int((sample.depth > 0).sum()),

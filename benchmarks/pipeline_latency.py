@@ -30,8 +30,9 @@ from benchmarks.common import DOCS, cpu_description, write_markdown
 from sdcnet.allocator import configure_malloc
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
+from sdcnet.normals import normals_at
 from sdcnet.pipeline import complete
-from sdcnet.pointcloud import back_project
+from sdcnet.pointcloud import back_project, mask_pixels
 from sdcnet.runtime.onnx import OnnxModel
 
 BUDGET_MS = 100.0
@@ -41,11 +42,11 @@ def time_frames(
     models: dict[str, OnnxModel], store: SampleStore, repeats: int
 ) -> dict[str, list[float]]:
     """Milliseconds of each frame of ``store`` (each one ``repeats`` times) through the
-    pipeline and the back-projection, per model, after a warm-up. The models take turns frame
-    by frame, so that a machine that slows down or speeds up weighs on each alike, and which
-    of them goes first moves on with every frame: the first to complete a frame can pay for
-    memory the next ones find ready (a 2048 x 2048 frame's first sigma paste-back took 15-34
-    ms, the same copy 0.8 ms on the next frame)."""
+    pipeline, the back-projection and the points' normals, per model, after a warm-up. The
+    models take turns frame by frame, so that a machine that slows down or speeds up weighs on
+    each alike, and which of them goes first moves on with every frame: the first to complete
+    a frame can pay for memory the next ones find ready (a 2048 x 2048 frame's first sigma
+    paste-back took 15-34 ms, the same copy 0.8 ms on the next frame)."""
     samples = [store.load(r) for r in store.records]
 
     def run(model: OnnxModel, sample) -> None:
@@ -55,6 +56,7 @@ def time_frames(
             model.run, sample.gray, sample.sparse, K.fx, info.stride, info.work_pixels
         )
         back_project(result.depth, result.mask, K)
+        normals_at(result, *mask_pixels(result.mask), K)
 
     for model in models.values():
         for sample in samples[:2]:

@@ -83,6 +83,7 @@ class Completion:
     mask: np.ndarray  # bool (H, W), True = spacecraft
     points: np.ndarray  # float32 (N, 3), camera frame (x right, y down, z forward), metres
     sigma: np.ndarray  # float32 (H, W), the depth's 1-sigma uncertainty, metres, 0 off the mask
+    normals: np.ndarray  # float32 (N, 3), each point's unit surface normal, facing the camera
     meta: dict[str, Any] = field(default_factory=dict)  # the service's summary (meta.json)
     latency_s: float = 0.0  # round trip, seconds, retries included
 
@@ -357,7 +358,13 @@ class Client:
         except protocol.AnswerError as exc:
             raise ClientError(f"unexpected answer from {self.url}{protocol.PATH}: {exc}") from exc
         return Completion(
-            answer.depth, answer.mask, answer.points, answer.sigma, answer.meta, latency
+            answer.depth,
+            answer.mask,
+            answer.points,
+            answer.sigma,
+            answer.normals,
+            answer.meta,
+            latency,
         )
 
     def pose(

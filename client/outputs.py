@@ -2,10 +2,10 @@
 
 ``depth.npy`` float32 (H, W) metres (0 outside the mask), ``sigma.npy`` float32 (H, W) metres
 (the depth's 1-sigma uncertainty, 0 outside the mask), ``mask.png`` 8-bit (255 = spacecraft),
-``points.ply`` binary PLY (camera frame, metres; each point's sigma as the vertex property
-``sigma``, as the service's PLY answer) and ``preview.png``: the gray image, the coloured
-depth, its sigma, the mask and a side view of the point cloud, side by side, zoomed on the
-spacecraft.
+``points.ply`` binary PLY (camera frame, metres; each point's unit normal as the vertex
+properties ``nx``, ``ny``, ``nz`` and its sigma as ``sigma``, as the service's PLY answer) and
+``preview.png``: the gray image, the coloured depth, its sigma, the mask and a side view of the
+point cloud, side by side, zoomed on the spacecraft.
 """
 
 from __future__ import annotations
@@ -81,10 +81,13 @@ def write_outputs(out: Path, gray: np.ndarray, result: Completion) -> list[Path]
     cv2.imwrite(str(paths["mask.png"]), (result.mask * 255).astype(np.uint8))
     comments = (
         "sdcnet point cloud: camera frame (x right, y down, z forward), metres",
+        "nx, ny, nz: the unit surface normal, facing the camera",
         "sigma: the depth's 1-sigma uncertainty, metres",
         f"model_version {result.model_version}",
     )
-    write_ply(paths["points.ply"], result.points, comments, {"sigma": point_sigma(result)})
+    normals = dict(zip(("nx", "ny", "nz"), result.normals.T, strict=True))
+    properties = {**normals, "sigma": point_sigma(result)}
+    write_ply(paths["points.ply"], result.points, comments, properties)
     cv2.imwrite(str(paths["preview.png"]), preview(gray_for_display(gray), result))
     return list(paths.values())
 

@@ -6,8 +6,9 @@ The request is a small JSON header followed by the raw gray image (1 byte a pixe
 LIDAR returns as a list (12 bytes a return): no image codec, no multipart form, no dense map.
 The answer holds the depth, the mask and the depth's uncertainty (sigma) of the spacecraft's
 region (the smallest window that holds the mask: everything outside it is 0), the mask 8
-pixels a byte, and the points; ``read_answer`` pastes them into full frames, equal to the
-service's full-frame answer bit for bit (float16 depth, on request, is not).
+pixels a byte, and the points with their normals; ``read_answer`` pastes them into full
+frames, equal to the service's full-frame answer bit for bit (float16 depth, on request, is
+not).
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ def request_body(
             {"name": "depth", "parameters": depth_parameters},
             {"name": "mask", "parameters": {"binary_data": True, "region": True, "bits": True}},
             {"name": "points", "parameters": {"binary_data": True}},
+            {"name": "normals", "parameters": {"binary_data": True}},
             {"name": "sigma", "parameters": {"binary_data": True, "region": True}},
         ],
     }
@@ -80,6 +82,7 @@ class Answer:
     mask: np.ndarray  # bool (H, W)
     points: np.ndarray  # float32 (N, 3) metres
     sigma: np.ndarray  # float32 (H, W) metres
+    normals: np.ndarray  # float32 (N, 3) unit vectors, one a point
     meta: dict[str, Any]  # the summary, shaped as POST /complete's (meta.json)
 
 
@@ -131,6 +134,7 @@ def read_answer(body: bytes, header_length: str | None, shape: tuple[int, int]) 
         mask = _full_frame(arrays["mask"], outputs["mask"], shape).astype(bool, copy=False)
         points = arrays["points"].reshape(-1, 3).copy()  # writable, not a view of the body
         sigma = _full_frame(arrays["sigma"], outputs["sigma"], shape)
-        return Answer(depth, mask, points, sigma, summary(document))
+        normals = arrays["normals"].reshape(-1, 3).copy()
+        return Answer(depth, mask, points, sigma, normals, summary(document))
     except (ValueError, KeyError, TypeError) as exc:
         raise AnswerError(f"{type(exc).__name__}: {exc}") from exc

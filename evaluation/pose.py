@@ -184,7 +184,7 @@ def gallery_rows(
     rows = []
     for result, target, sample in picks:
         K = Intrinsics(**sample.meta["intrinsics"])
-        depth, mask, _ = method(sample)
+        depth, mask = method(sample)[:2]
         returns = back_project(sample.sparse, sample.sparse > 0, K)
         points = back_project(depth, mask, K) if cloud != RAW else returns
         estimate = estimate_pose(target.model, points, returns)

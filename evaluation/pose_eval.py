@@ -99,7 +99,7 @@ def clouds(sample: Sample, methods: dict[str, Method]) -> Iterator[tuple[str, np
     K = Intrinsics(**sample.meta["intrinsics"])
     for name, method in methods.items():
         start = time.perf_counter()
-        depth, mask, sigma = method(sample)
+        depth, mask, sigma = method(sample)[:3]
         trusted, _ = trusted_pixels(mask & (depth > 0), sigma, None, POSE_SIGMA_QUANTILE)
         cloud = back_project(depth, trusted, K)
         yield name, cloud, (time.perf_counter() - start) * 1e3

@@ -66,7 +66,7 @@ def gallery_row(
     """gray | LIDAR returns | predicted depth | ground truth | error map | side views of the
     completed cloud, of each of ``others``' clouds (name -> method) and of the true one:
     where a flat panel comes out flat, and where it ripples between scan lines."""
-    depth, mask, _ = method(sample)
+    depth, mask = method(sample)[:2]
     K = Intrinsics(**sample.meta["intrinsics"])
     window = object_crop(sample.mask | mask)
     valid = sample.depth[sample.mask]
@@ -74,7 +74,7 @@ def gallery_row(
     m = frame_metrics(depth, mask, sample.depth)
     sides = [labelled(side_view(back_project(depth, mask, K)), "completed, side")]
     for name, other in (others or {}).items():
-        other_depth, other_mask, _ = other(sample)
+        other_depth, other_mask = other(sample)[:2]
         sides.append(labelled(side_view(back_project(other_depth, other_mask, K)), f"{name}, side"))
     sides.append(labelled(side_view(back_project(sample.depth, sample.mask, K)), "true, side"))
     return [

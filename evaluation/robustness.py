@@ -23,7 +23,14 @@ from tqdm import tqdm
 
 from sdcnet.dataset_format import Sample, SampleStore
 from sdcnet.evaluation.real import gallery_row
-from sdcnet.evaluation.scoring import FILL, Method, StoredAnswers, classical, score_frame
+from sdcnet.evaluation.scoring import (
+    FILL,
+    FrameAnswer,
+    Method,
+    StoredAnswers,
+    classical,
+    score_frame,
+)
 from sdcnet.meshes import MeshEntry
 from sdcnet.metrics import BAND_NAMES, MetricTable
 from sdcnet.training.data.conditions import ROBUSTNESS
@@ -78,7 +85,7 @@ class ConditionResult:
 def timed(method: Method, clock: list[float]) -> Method:
     """``method`` that appends the milliseconds of each call to ``clock``."""
 
-    def answer(sample: Sample) -> tuple[np.ndarray, np.ndarray]:
+    def answer(sample: Sample) -> FrameAnswer:
         start = time.perf_counter()
         result = method(sample)
         clock.append((time.perf_counter() - start) * 1e3)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -20,7 +21,8 @@ from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
 from sdcnet.evaluation.classical_fill import classical_fill
 from sdcnet.metrics import MASK_NAMES, MetricTable, false_specks, frame_metrics, frame_report
-from sdcnet.pipeline import WORK_PIXELS, ModelFn, complete
+from sdcnet.normals import normal_map
+from sdcnet.pipeline import WORK_PIXELS, Completion, ModelFn, complete
 
 
 def torch_model_fn(model: torch.nn.Module, device: torch.device | str = "cpu") -> ModelFn:
@@ -55,19 +57,30 @@ def mask_metrics_only(means: dict[str, float]) -> dict[str, float]:
     return {k: v if k in (*MASK_NAMES, "specks") else float("nan") for k, v in means.items()}
 
 
-#: One way to answer a frame: sample -> depth (H, W) float32 metres (0 off the mask), mask
-#: (H, W) bool and the depth's uncertainty sigma (H, W) float32 metres, or None for a method
-#: without one. A network through the pipeline (``network``) or the classical fill.
-Method = Callable[[Sample], tuple[np.ndarray, np.ndarray, np.ndarray | None]]
+class FrameAnswer(NamedTuple):
+    """A method's answer on one frame: depth (H, W) float32 metres (0 off the mask), mask
+    (H, W) bool, the depth's uncertainty sigma (H, W) float32 metres (None for a method without
+    one) and, from the pipeline, its whole ``Completion``: the normals of its point cloud are
+    scored from it (``sdcnet.normals``), those of other methods from their depth maps."""
+
+    depth: np.ndarray
+    mask: np.ndarray
+    sigma: np.ndarray | None = None
+    completion: Completion | None = None
+
+
+#: One way to answer a frame: a network through the pipeline (``network``), the classical
+#: fill or answers stored elsewhere.
+Method = Callable[[Sample], FrameAnswer]
 
 
 def network(model_fn: ModelFn, stride: int, work_pixels: int = WORK_PIXELS) -> Method:
     """A network as the service runs it: ``sdcnet.pipeline.complete`` on the whole frame."""
 
-    def answer(sample: Sample) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    def answer(sample: Sample) -> FrameAnswer:
         fx = float(sample.meta["intrinsics"]["fx"])
         result = complete(model_fn, sample.gray, sample.sparse, fx, stride, work_pixels)
-        return result.depth, result.mask, result.sigma
+        return FrameAnswer(result.depth, result.mask, result.sigma, result)
 
     return answer
 
@@ -76,9 +89,9 @@ def network(model_fn: ModelFn, stride: int, work_pixels: int = WORK_PIXELS) -> M
 FILL = "classical fill"
 
 
-def classical(sample: Sample) -> tuple[np.ndarray, np.ndarray, None]:
+def classical(sample: Sample) -> FrameAnswer:
     """The classical morphological fill of the frame's returns (``classical_fill``)."""
-    return (*classical_fill(sample.sparse), None)
+    return FrameAnswer(*classical_fill(sample.sparse))
 
 
 class StoredAnswers:
@@ -99,10 +112,10 @@ class StoredAnswers:
         with np.load(path, allow_pickle=False) as answer:
             return {k: answer[k] for k in answer.files}
 
-    def __call__(self, sample: Sample) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    def __call__(self, sample: Sample) -> FrameAnswer:
         answer = self._load(sample)
         sigma = answer["sigma"].astype(np.float32) if "sigma" in answer else None
-        return answer["depth"].astype(np.float32), answer["mask"].astype(bool), sigma
+        return FrameAnswer(answer["depth"].astype(np.float32), answer["mask"].astype(bool), sigma)
 
     def milliseconds(self, sample: Sample) -> float:
         """What the frame took where it was answered."""
@@ -112,16 +125,27 @@ class StoredAnswers:
 def score_frame(method: Method, sample: Sample) -> dict[str, float]:
     """Every metric of ``sdcnet.metrics.frame_report`` for one frame, the classical fill of
     the same frame as the reference."""
-    depth, mask, sigma = method(sample)
-    fill_depth, fill_mask, _ = classical(sample)
+    answer = method(sample)
+    fill = classical(sample)
     K = Intrinsics(**sample.meta["intrinsics"])
-    return frame_report(depth, mask, fill_depth, fill_mask, sample.depth, sample.sparse, K, sigma)
+    normals = None if answer.completion is None else normal_map(answer.completion, K)
+    return frame_report(
+        answer.depth,
+        answer.mask,
+        fill.depth,
+        fill.mask,
+        sample.depth,
+        sample.sparse,
+        K,
+        answer.sigma,
+        normals,
+    )
 
 
 def score_mask(method: Method, sample: Sample) -> dict[str, float]:
     """The paper's six metrics and the false specks of one frame, without the reports that
     need the classical fill, the normals or sigma: what a mask alone is judged by."""
-    depth, mask, _ = method(sample)
+    depth, mask = method(sample)[:2]
     report = frame_metrics(depth, mask, sample.depth)
     report["specks"] = float(false_specks(mask, sample.sparse, sample.depth))
     return report

@@ -239,12 +239,17 @@ def depth_edges(depth: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
 
 
 def normal_errors(
-    pred_depth: np.ndarray, pred_mask: np.ndarray, gt_depth: np.ndarray, intrinsics: Intrinsics
+    pred_depth: np.ndarray,
+    pred_mask: np.ndarray,
+    gt_depth: np.ndarray,
+    intrinsics: Intrinsics,
+    pred_normals: np.ndarray | None = None,
 ) -> dict[str, float]:
-    """Angle (degrees) between the normals of the predicted and the true depth map on the
-    interior of predicted ∩ true foreground, ``NORMAL_MARGIN_PX`` away from the outline and from
-    the true depth edges: ``normal_mean_deg``, ``normal_median_deg`` and ``normal_within_11.25``
-    (share of pixels within 11.25 degrees), NaN when no pixel qualifies.
+    """Angle (degrees) between the predicted normals (``pred_normals``, (H, W, 3) unit
+    vectors; without them, those of the predicted depth map) and those of the true depth map on
+    the interior of predicted ∩ true foreground, ``NORMAL_MARGIN_PX`` away from the outline and
+    from the true depth edges: ``normal_mean_deg``, ``normal_median_deg`` and
+    ``normal_within_11.25`` (share of pixels within 11.25 degrees), NaN when no pixel qualifies.
 
     A point cloud must be flat where the spacecraft is flat: a ripple between scan lines that
     MAE barely sees tilts the normals by degrees.
@@ -256,11 +261,9 @@ def normal_errors(
     interior = ~cv2.dilate(unsure.astype(np.uint8), np.ones((size, size), np.uint8)).astype(bool)
     if not interior.any():
         return dict.fromkeys(NORMAL_NAMES, float("nan"))
-    dot = np.sum(
-        surface_normals(pred_depth, intrinsics)[interior]
-        * surface_normals(gt_depth, intrinsics)[interior],
-        -1,
-    )
+    if pred_normals is None:
+        pred_normals = surface_normals(pred_depth, intrinsics)
+    dot = np.sum(pred_normals[interior] * surface_normals(gt_depth, intrinsics)[interior], -1)
     angle = np.degrees(np.arccos(np.clip(dot, -1.0, 1.0)))
     values = (angle.mean(), np.median(angle), (angle <= NORMAL_GOOD_DEG).mean())
     return {name: float(v) for name, v in zip(NORMAL_NAMES, values, strict=True)}
@@ -317,10 +320,12 @@ def frame_report(
     sparse: np.ndarray,
     intrinsics: Intrinsics,
     sigma: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
 ) -> dict[str, float]:
     """Every metric of one image: the paper's six, depth on the classical fill's pixels by
-    distance to the returns, normals, false specks and the uncertainty's honesty (NaN without
-    ``sigma``). Depths in metres, masks boolean."""
+    distance to the returns, normals (``normals``, (H, W, 3), when the method answers some;
+    else its depth map's), false specks and the uncertainty's honesty (NaN without ``sigma``).
+    Depths in metres, masks boolean."""
     report = frame_metrics(pred_depth, pred_mask, gt_depth)
     report |= same_pixel_errors(pred_depth, pred_mask, fill_depth, fill_mask, gt_depth, sparse)
     # Normals only where the spacecraft is: a crop around everything that is foreground
@@ -329,7 +334,10 @@ def frame_report(
         y0, x0 = max(rows.min() - 1, 0), max(cols.min() - 1, 0)
         window = (slice(y0, rows.max() + 2), slice(x0, cols.max() + 2))
         shifted = replace(intrinsics, cx=intrinsics.cx - x0, cy=intrinsics.cy - y0)
-        report |= normal_errors(pred_depth[window], pred_mask[window], gt_depth[window], shifted)
+        given = None if normals is None else normals[window]
+        report |= normal_errors(
+            pred_depth[window], pred_mask[window], gt_depth[window], shifted, given
+        )
     else:
         report |= dict.fromkeys(NORMAL_NAMES, float("nan"))
     report["specks"] = float(false_specks(pred_mask, sparse, gt_depth))

@@ -392,6 +392,8 @@ class Completion:
     mask: np.ndarray  # (H, W) bool
     probability_crop: np.ndarray  # (h, w) float32
     grid: WorkingGrid
+    surface: np.ndarray  # (h', w') float32 metres on the working grid: what depth resamples
+    working_mask: np.ndarray  # (h', w') bool: the mask on the working grid
     sigma: np.ndarray | None = None  # (H, W) float32 metres, 0 off the mask; None: model has none
 
     @property
@@ -644,4 +646,4 @@ def complete(
     if sigma_w is not None:
         sigma_box = resample_depth(anchored_sigma(sigma_w, anchored), shape, math.inf, box)
         sigma = on_mask(sigma_box, mask, at)
-    return Completion(depth, mask, prob_crop, grid, sigma)
+    return Completion(depth, mask, prob_crop, grid, surface, mask_w, sigma)

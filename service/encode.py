@@ -7,11 +7,12 @@ own buffers a slice at a time, so an answer costs the memory of its arrays and o
 (``SLICE_BYTES``), whatever its size; the spool keeps 2 MiB in memory and the rest on disk.
 
 - json: ``CompletionResponse``, arrays as base64 of their ``.npy`` bytes (exact round trip);
-  the arrays (depth, mask, points, sigma) come first, then the summary's fields;
+  the arrays (depth, mask, points, normals, sigma) come first, then the summary's fields;
 - npz: a zip (stored, not deflated: speed over size) of ``depth.npy``, ``mask.npy``,
-  ``points.npy``, ``sigma.npy`` and ``meta.json`` (the summary), read by ``numpy.load``;
-- ply: the point cloud alone, binary little-endian, each vertex x, y, z and its sigma
-  (float32, metres), the summary's essentials as comments.
+  ``points.npy``, ``normals.npy``, ``sigma.npy`` and ``meta.json`` (the summary), read by
+  ``numpy.load``;
+- ply: the point cloud alone, binary little-endian, each vertex x, y, z (metres), its unit
+  normal nx, ny, nz and its sigma (metres), all float32, the summary's essentials as comments.
 """
 
 from __future__ import annotations
@@ -111,18 +112,28 @@ class _Npz:
         self.zip.close()
 
 
-#: The per-vertex properties of a PLY answer after x, y, z (float32, metres).
-PLY_PROPERTIES = ("sigma",)
+#: The per-vertex properties of a PLY answer after x, y, z (float32): the unit normal (the
+#: names Open3D, PCL and MeshLab read as normals) and the depth's sigma (metres).
+PLY_PROPERTIES = ("nx", "ny", "nz", "sigma")
 
 
 class _Ply:
-    """The vertices are interleaved (x, y, z, sigma) a slice of ``SLICE_BYTES`` at a time."""
+    """The vertices are interleaved (x, y, z, nx, ny, nz, sigma) a slice of ``SLICE_BYTES`` at
+    a time."""
 
-    def __init__(self, points: np.ndarray, sigma: np.ndarray, comments: list[str], spool: Spool):
+    def __init__(
+        self,
+        points: np.ndarray,
+        normals: np.ndarray,
+        sigma: np.ndarray,
+        comments: list[str],
+        spool: Spool,
+    ):
         spool.write(ply_header(len(points), comments, PLY_PROPERTIES))
         step = max(1, SLICE_BYTES // (4 * (3 + len(PLY_PROPERTIES))))
         for start in range(0, len(points), step):
-            rows = ply_vertices(points[start : start + step], (sigma[start : start + step],))
+            part = slice(start, start + step)
+            rows = ply_vertices(points[part], (*normals[part].T, sigma[part]))
             spool.write(memoryview(rows).cast("B"))
 
     def finish(self, summary: CompletionSummary) -> None:
@@ -134,6 +145,7 @@ def ply_comments(frame: FrameSummary, K: Intrinsics) -> list[str]:
     the points were back-projected with)."""
     return [
         "sdcnet point cloud: camera frame (x right, y down, z forward), metres",
+        "nx, ny, nz: the unit surface normal, facing the camera",
         "sigma: the depth's 1-sigma uncertainty, metres",
         f"model_version {frame.model_version}",
         f"provider {frame.provider}",
@@ -145,13 +157,19 @@ def ply_comments(frame: FrameSummary, K: Intrinsics) -> list[str]:
 
 def encode(fmt: ResponseFormat, done: Completed, frame: FrameSummary, spool: Spool) -> Encoded:
     """Write the arrays of a completed frame for ``fmt`` into ``spool``: depth float32 (H, W)
-    metres, mask uint8 (H, W), points float32 (N, 3) metres, sigma float32 (H, W) metres (PLY:
-    each point's); ``frame``: the summary without timings (the PLY header's)."""
+    metres, mask uint8 (H, W), points float32 (N, 3) metres, their unit normals float32 (N, 3),
+    sigma float32 (H, W) metres (PLY: each point's); ``frame``: the summary without timings
+    (the PLY header's)."""
     if fmt is ResponseFormat.ply:
         comments = ply_comments(frame, done.intrinsics)
-        return _Ply(done.points, done.point_sigma, comments, spool)
-    mask = done.mask.view(np.uint8)
-    arrays = {"depth": done.depth, "mask": mask, "points": done.points, "sigma": done.sigma}
+        return _Ply(done.points, done.normals, done.point_sigma, comments, spool)
+    arrays = {
+        "depth": done.depth,
+        "mask": done.mask.view(np.uint8),
+        "points": done.points,
+        "normals": done.normals,
+        "sigma": done.sigma,
+    }
     if fmt is ResponseFormat.json:
         return _Json(arrays, spool)
     return _Npz(arrays, spool)

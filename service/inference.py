@@ -21,8 +21,9 @@ import numpy as np
 
 from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.compact import mask_window
+from sdcnet.normals import normals_at
 from sdcnet.pipeline import Completion, Region, complete
-from sdcnet.pointcloud import back_project, statistical_outliers, trusted_pixels
+from sdcnet.pointcloud import back_project, mask_pixels, statistical_outliers, trusted_pixels
 from sdcnet.runtime.interface import ModelLoadError, Runtime
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
@@ -132,7 +133,8 @@ class Completed:
     mask bool (H, W), sigma float32 (H, W) metres (the depth's 1-sigma uncertainty, 0 off the
     mask), points float32 (N, 3) metres of the ``kept`` pixels (bool (H, W)), the region the
     network saw (everything outside it is 0), the intrinsics used, the summary's counts and
-    the sigma above which points left the cloud (metres; ``None``: no limit)."""
+    the sigma above which points left the cloud (metres; ``None``: no limit); and the pipeline's
+    answer the normals of the points are taken from, when a protocol asks for them."""
 
     depth: np.ndarray
     mask: np.ndarray
@@ -145,6 +147,14 @@ class Completed:
     outliers_removed: int
     uncertain_removed: int
     sigma_limit: float | None
+    completion: Completion
+
+    @functools.cached_property
+    def normals(self) -> np.ndarray:
+        """float32 (N, 3): each point's unit surface normal, camera frame, facing the camera,
+        in the order of ``points`` (``sdcnet.normals``)."""
+        rows, cols = mask_pixels(self.kept)
+        return normals_at(self.completion, rows, cols, self.intrinsics)
 
     @functools.cached_property
     def point_sigma(self) -> np.ndarray:
@@ -224,6 +234,7 @@ def complete_frame(
         outliers_removed=trusted_count - len(points),
         uncertain_removed=int(np.count_nonzero(valid)) - trusted_count,
         sigma_limit=limit,
+        completion=result,
     )
 
 

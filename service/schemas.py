@@ -12,8 +12,8 @@ class ResponseFormat(StrEnum):
     """How ``POST /complete`` answers."""
 
     json = "json"  # arrays as base64 of .npy bytes, in a JSON document
-    npz = "npz"  # one zip: depth.npy, mask.npy, points.npy, sigma.npy, meta.json
-    ply = "ply"  # the point cloud alone, binary little-endian PLY: x, y, z, sigma a vertex
+    npz = "npz"  # one zip: depth.npy, mask.npy, points.npy, normals.npy, sigma.npy, meta.json
+    ply = "ply"  # the point cloud alone, binary little-endian PLY: x, y, z, nx, ny, nz, sigma
 
 
 class ErrorDetail(BaseModel):
@@ -124,6 +124,10 @@ class CompletionResponse(CompletionSummary):
     depth: EncodedArray = Field(description="float32 (H, W) metres, 0 outside the mask")
     mask: EncodedArray = Field(description="uint8 (H, W), 1 = spacecraft")
     points: EncodedArray = Field(description="float32 (N, 3) camera frame, metres")
+    normals: EncodedArray = Field(
+        description="float32 (N, 3): each point's unit surface normal, camera frame, facing the "
+        "camera"
+    )
     sigma: EncodedArray = Field(
         description="float32 (H, W) metres: the depth's 1-sigma uncertainty, 0 outside the mask"
     )

@@ -11,11 +11,12 @@ with the request parameter ``binary_data_output``) follow the JSON header as raw
 Inputs: ``gray`` (UINT8 or UINT16, [H, W]) and either ``sparse`` (FP32, [H, W], metres, 0 = no
 return) or ``returns`` (FP32, [N, 3]: row, column, Z metres). Request parameters: ``fx``,
 ``fy``, ``cx``, ``cy`` (pixels), ``outlier_removal`` and ``max_sigma`` (metres). Outputs:
-``depth`` (FP32, [H, W]), ``mask`` (UINT8, [H, W]), ``points`` (FP32, [N, 3]) and ``sigma``
-(FP32, [H, W], metres). sdcnet's own output parameters ask for the compact layouts of
-``sdcnet.compact``: ``region`` (depth, mask, sigma: only the spacecraft's region, the
-smallest window holding the mask; the answer says where), ``bits`` (mask: 8 pixels a byte)
-and ``fp16`` (depth: float16 residuals above ``depth_offset``).
+``depth`` (FP32, [H, W]), ``mask`` (UINT8, [H, W]), ``points`` (FP32, [N, 3]), ``normals``
+(FP32, [N, 3], each point's unit surface normal) and ``sigma`` (FP32, [H, W], metres).
+sdcnet's own output parameters ask for the compact layouts of ``sdcnet.compact``: ``region``
+(depth, mask, sigma: only the spacecraft's region, the smallest window holding the mask; the
+answer says where), ``bits`` (mask: 8 pixels a byte) and ``fp16`` (depth: float16 residuals
+above ``depth_offset``).
 
 The protocol's data models are in ``sdcnet.service.v2_schemas``, request bytes become a frame
 in ``sdcnet.service.v2_decode`` and a completed frame becomes answer bytes in

@@ -24,6 +24,7 @@ from sdcnet.service.v2_schemas import (
     InferenceRequest,
     InferParameters,
     MaskOutput,
+    NormalsOutput,
     PointsOutput,
     RequestInput,
     SigmaOutput,
@@ -202,12 +203,13 @@ def frame_of_request(parsed: ParsedRequest, binary: memoryview, limits: InputLim
 
 
 def requested_outputs(request: InferenceRequest) -> list[AnyOutput]:
-    """The outputs asked for, each once (default: depth, mask, points and sigma)."""
+    """The outputs asked for, each once (default: depth, mask, points, normals and sigma)."""
     if request.outputs is None:
         return [
             DepthOutput(name="depth"),
             MaskOutput(name="mask"),
             PointsOutput(name="points"),
+            NormalsOutput(name="normals"),
             SigmaOutput(name="sigma"),
         ]
     names = [o.name for o in request.outputs]
@@ -216,6 +218,7 @@ def requested_outputs(request: InferenceRequest) -> list[AnyOutput]:
         raise _bad(f"output {', '.join(repeated)} is asked for more than once")
     if not names:
         raise _bad(
-            "outputs is empty: ask for depth, mask, points or sigma, or leave it out for all"
+            "outputs is empty: ask for depth, mask, points, normals or sigma, or leave it out "
+            "for all"
         )
     return list(request.outputs)

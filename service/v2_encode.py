@@ -23,6 +23,7 @@ from sdcnet.service.v2_schemas import (
     AnyOutput,
     DepthOutput,
     MaskOutput,
+    NormalsOutput,
     PointsOutput,
     Scalar,
     SigmaOutput,
@@ -42,6 +43,8 @@ def output_tensor(output: AnyOutput, done: Completed) -> Tensor:
     """``output`` of a completed frame, in the layout its parameters ask for."""
     if isinstance(output, PointsOutput):
         return Tensor(done.points, "FP32", {})
+    if isinstance(output, NormalsOutput):
+        return Tensor(done.normals, "FP32", {})
     params = output.parameters
     if isinstance(output, MaskOutput):
         array = done.mask.view(np.uint8)

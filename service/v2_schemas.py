@@ -22,6 +22,7 @@ PROTOCOL_OUTPUTS = {
     "depth": ("FP32", (-1, -1)),
     "mask": ("UINT8", (-1, -1)),
     "points": ("FP32", (-1, 3)),
+    "normals": ("FP32", (-1, 3)),
     "sigma": ("FP32", (-1, -1)),
 }
 
@@ -139,7 +140,12 @@ class SigmaOutput(_Strict):
     parameters: RegionOutputParameters | None = None
 
 
-AnyOutput = DepthOutput | MaskOutput | PointsOutput | SigmaOutput
+class NormalsOutput(_Strict):
+    name: Literal["normals"]
+    parameters: BinaryOutputParameters | None = None
+
+
+AnyOutput = DepthOutput | MaskOutput | PointsOutput | NormalsOutput | SigmaOutput
 RequestOutput = Annotated[AnyOutput, Field(discriminator="name")]
 
 
@@ -150,7 +156,8 @@ class InferenceRequest(_Strict):
     parameters: InferParameters | None = None
     inputs: list[RequestInput] = Field(description="gray, and sparse or returns")
     outputs: list[RequestOutput] | None = Field(
-        None, description="depth, mask, points, sigma, each at most once (default: all four)"
+        None,
+        description="depth, mask, points, normals, sigma, each at most once (default: all five)",
     )
 
 

@@ -65,7 +65,7 @@ def service_answer(url: str, gray: bytes, sparse: bytes, **fields) -> dict[str, 
     body = httpx.post(f"{url}/complete", files=files, data=fields, timeout=60).json()
     return {
         k: np.load(io.BytesIO(base64.b64decode(body[k]["npy_base64"])), allow_pickle=False)
-        for k in ("depth", "mask", "points", "sigma")
+        for k in ("depth", "mask", "points", "normals", "sigma")
     }
 
 
@@ -100,9 +100,10 @@ def test_infer_writes_five_files_that_match_the_service(url, frame_files, tmp_pa
     np.testing.assert_array_equal(points, expected["points"])
     assert len(points) == np.count_nonzero(expected["depth"]) > 3000
     assert f"model_version {TINY_VERSION}" in cloud.comments
-    # each point's sigma, as in the service's own PLY answer
+    # each point's normal and sigma, as in the service's own PLY answer
     served = read_ply(service_ply(url, gray.read_bytes(), sparse.read_bytes()))
-    np.testing.assert_array_equal(cloud.properties["sigma"], served.properties["sigma"])
+    for name in ("nx", "ny", "nz", "sigma"):
+        np.testing.assert_array_equal(cloud.properties[name], served.properties[name])
 
     preview = cv2.imread(str(out / "preview.png"))
     assert preview.shape == (320, 5 * 320 + 4 * 4, 3)
@@ -136,6 +137,7 @@ def test_python_api_returns_arrays(url, frame_files):
         np.testing.assert_array_equal(result.depth, expected["depth"])
         np.testing.assert_array_equal(result.mask, expected["mask"].astype(bool))
         np.testing.assert_array_equal(result.points, expected["points"])
+        np.testing.assert_array_equal(result.normals, expected["normals"])
         assert result.sigma.dtype == np.float32 and np.isfinite(result.sigma).all()
         np.testing.assert_array_equal(result.sigma, expected["sigma"])  # pasted back whole
         assert result.model_version == TINY_VERSION

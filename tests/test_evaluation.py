@@ -71,9 +71,10 @@ def test_stored_answers_are_scored_like_any_method(tmp_path):
     mask = s.depth > 0
     np.savez(tmp_path / "f0.npz", depth=s.depth, mask=mask, milliseconds=42.0)
     stored = StoredAnswers(tmp_path)
-    depth, got, sigma = stored(s)
+    depth, got, sigma, completion = stored(s)
     assert (depth == s.depth).all() and got.dtype == bool and (got == mask).all()
     assert sigma is None, "answers made without an uncertainty have none"
+    assert completion is None, "nor the pipeline's answer (normals from their depth)"
     assert stored.milliseconds(s) == 42.0
     report = score_frame(stored, s)
     assert report["IOU"] == 1.0 and report["MAEI"] == 0.0 and report["specks"] == 0

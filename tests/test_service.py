@@ -177,6 +177,7 @@ def test_model_metadata(client):
         "depth": ("FP32", [-1, -1]),
         "mask": ("UINT8", [-1, -1]),
         "points": ("FP32", [-1, 3]),
+        "normals": ("FP32", [-1, 3]),
         "sigma": ("FP32", [-1, -1]),
     }
     assert "metres" in meta["inputs"][1]["description"]
@@ -255,14 +256,27 @@ def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
     assert npz.status_code == ply.status_code == 200
     assert 'filename="sdcnet.npz"' in npz.headers["content-disposition"]
     names = zipfile.ZipFile(io.BytesIO(npz.content)).namelist()  # any zip reader opens it
-    assert names == ["depth.npy", "mask.npy", "points.npy", "sigma.npy", "meta.json"]
+    assert names == [
+        "depth.npy",
+        "mask.npy",
+        "points.npy",
+        "normals.npy",
+        "sigma.npy",
+        "meta.json",
+    ]
 
     with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
-        assert sorted(archive.files) == ["depth", "mask", "meta.json", "points", "sigma"]
+        assert sorted(archive.files) == ["depth", "mask", "meta.json", "normals", "points", "sigma"]
         depth, mask, points = archive["depth"], archive["mask"], archive["points"]
+        normals = archive["normals"]
         sigma, meta = archive["sigma"], json.loads(archive["meta.json"])
     np.testing.assert_array_equal(depth, decoded(as_json["depth"]))
     np.testing.assert_array_equal(points, decoded(as_json["points"]))
+    np.testing.assert_array_equal(normals, decoded(as_json["normals"]))
+    # one unit normal a point, facing the camera (towards -P)
+    assert normals.shape == points.shape and normals.dtype == np.float32
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+    assert (np.sum(normals * points, axis=1) < 0).all()
     np.testing.assert_array_equal(sigma, decoded(as_json["sigma"]))
     assert sigma.dtype == np.float32 and np.isfinite(sigma).all() and sigma.max() > 0
     assert meta["intrinsics"] == {"fx": 2000.0, "fy": 2020.0, "cx": 100.5, "cy": 130.0}
@@ -277,6 +291,9 @@ def test_npz_and_ply_formats_with_given_intrinsics_and_outlier_removal(client):
     cloud = read_ply(ply.content)
     np.testing.assert_array_equal(cloud.points, points)
     np.testing.assert_array_equal(cloud.properties["sigma"], sigma[kept])  # each point's own
+    assert list(cloud.properties) == ["nx", "ny", "nz", "sigma"]  # the names readers know
+    ply_normals = np.stack([cloud.properties[k] for k in ("nx", "ny", "nz")], axis=1)
+    np.testing.assert_array_equal(ply_normals, normals)
     assert f"model_version {TINY_VERSION}" in cloud.comments
 
 

@@ -19,9 +19,10 @@ from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Client
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
 from sdcnet.formats.v2 import HEADER_LENGTH
+from sdcnet.normals import normals_at
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
-from sdcnet.pointcloud import back_project
+from sdcnet.pointcloud import back_project, mask_pixels
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.runtime.onnx import SPIN_WAIT, OnnxModel
 from sdcnet.service.app import load_model
@@ -63,12 +64,19 @@ def expected(model_path) -> dict[str, np.ndarray]:
     info = model.info
     result = complete(model.run, s.gray, s.sparse, K.fx, info.stride, info.work_pixels)
     points = back_project(result.depth, result.mask, K)
+    normals = normals_at(result, *mask_pixels(result.mask), K)
     assert result.mask.any() and np.isfinite(result.sigma).all() and result.sigma.any()
     mask = result.mask.astype(np.uint8)
-    return {"depth": result.depth, "mask": mask, "points": points, "sigma": result.sigma}
+    return {
+        "depth": result.depth,
+        "mask": mask,
+        "points": points,
+        "normals": normals,
+        "sigma": result.sigma,
+    }
 
 
-PROTOCOL_OUTPUT_NAMES = ("depth", "mask", "points", "sigma")
+PROTOCOL_OUTPUT_NAMES = ("depth", "mask", "points", "normals", "sigma")
 
 
 def triton_infer(url: str, inputs: dict[str, np.ndarray], binary: bool, **parameters):

@@ -41,7 +41,7 @@ def error_ratios(
     ratios = []
     for record in tqdm(records, desc="calibrate", unit="img", leave=False):
         sample = store.load(record)
-        depth, mask, sigma = method(sample)
+        depth, mask, sigma = method(sample)[:3]
         region = np.flatnonzero(mask & (sample.depth > 0))
         if region.size > PIXELS_PER_FRAME:
             region = rng.choice(region, PIXELS_PER_FRAME, replace=False)

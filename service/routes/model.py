@@ -28,6 +28,7 @@ _DESCRIPTIONS = {
     "depth": "camera-frame Z, metres, 0 outside the mask",
     "mask": "1 = spacecraft",
     "points": "the mask's pixels back-projected: camera frame (x right, y down, z forward), m",
+    "normals": "each point's unit surface normal, camera frame, facing the camera",
     "sigma": "the depth's 1-sigma uncertainty, metres, 0 outside the mask",
 }
 
