@@ -81,36 +81,37 @@ def normal_directions(
     return np.float32(intrinsics.fx) * z_u, np.float32(intrinsics.fy) * z_v, nz
 
 
-def working_pixels(grid: WorkingGrid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, ...]:
-    """(rows, cols) of the working pixels (int64) that frame pixels ``rows``, ``cols`` fall in."""
-    scale_rows, scale_cols = grid.scale
-    region = grid.region
-    height, width = grid.shape
-    r = ((rows - region.y0 + 0.5) * scale_rows).astype(np.int64)
-    c = ((cols - region.x0 + 0.5) * scale_cols).astype(np.int64)
-    return np.clip(r, 0, height - 1), np.clip(c, 0, width - 1)
+def working_lookup(grid: WorkingGrid, frame_size: int, axis: int, first: int, size: int):
+    """For each frame row (``axis`` 0) or column (1) of a frame ``frame_size`` pixels along it,
+    the index (int32) of the working row or column it falls in, counted from ``first`` and
+    clipped to the ``size`` from there: a table, so that a million points cost two lookups."""
+    scale = grid.scale[axis]
+    start = (grid.region.y0, grid.region.x0)[axis]
+    frame = np.arange(frame_size, dtype=np.float64)
+    working = np.floor((frame - start + 0.5) * scale).astype(np.int32) - first
+    return np.clip(working, 0, size - 1)
 
 
 def normals_at(
     completion: Completion, rows: np.ndarray, cols: np.ndarray, intrinsics: Intrinsics
 ) -> np.ndarray:
     """(N, 3) float32 unit normals, camera frame, facing the camera, of a completed frame at
-    its pixels ``rows``, ``cols`` (frame pixels, e.g. its cloud's points in their order).
-    Only the working mask's box, grown by a step, is computed (a pixel beyond it takes the
-    normal of the box's nearest)."""
+    its pixels ``rows``, ``cols`` (frame pixels, e.g. its cloud's points in their order): each
+    the normal of the working pixel it falls in. Only the working mask's box, grown by a step,
+    is computed (a pixel beyond it takes the normal of the box's nearest)."""
     mask = completion.working_mask
     x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
     y0, x0 = max(y - NORMAL_STEP_PX, 0), max(x - NORMAL_STEP_PX, 0)
     box = np.s_[y0 : y + h + NORMAL_STEP_PX, x0 : x + w + NORMAL_STEP_PX]
     depth = completion.surface[box]
-    directions = normal_directions(depth, mask[box], completion.grid, intrinsics, (y0, x0))
-    inner_rows, inner_cols = working_pixels(completion.grid, rows, cols)
-    r = np.clip(inner_rows - y0, 0, depth.shape[0] - 1)
-    c = np.clip(inner_cols - x0, 0, depth.shape[1] - 1)
-    at = r * depth.shape[1] + c
-    normals = np.stack([np.take(d, at) for d in directions], axis=1)
-    normals /= np.sqrt(np.einsum("nk,nk->n", normals, normals))[:, None] + np.float32(1e-30)
-    return normals
+    nx, ny, nz = normal_directions(depth, mask[box], completion.grid, intrinsics, (y0, x0))
+    length = np.sqrt(nx * nx + ny * ny + nz * nz) + np.float32(1e-30)
+    unit = np.stack([nx / length, ny / length, nz / length], axis=-1).reshape(-1, 3)
+    height, width = completion.mask.shape
+    box_rows = working_lookup(completion.grid, height, 0, y0, depth.shape[0])
+    box_cols = working_lookup(completion.grid, width, 1, x0, depth.shape[1])
+    at = box_rows[rows] * np.int32(depth.shape[1]) + box_cols[cols]
+    return unit[at]
 
 
 def normal_map(completion: Completion, intrinsics: Intrinsics) -> np.ndarray:
