@@ -11,7 +11,8 @@ of them alike):
 
 - **in-process pipeline**: what the service does for one request without HTTP, in this process
   on its own onnxruntime session with the same threads: the returns list checked and made a
-  map, the crop-infer-paste pipeline, the point cloud (``frame_of`` + ``complete_frame``);
+  map, the crop-infer-paste pipeline, the point cloud and its normals (``frame_of`` +
+  ``complete_frame``);
 - **Client.complete**: the Python client (arrays in, full-frame arrays out), one keep-alive
   connection;
 - **sdc-client infer**: the command as a process (Python start-up included) on a PNG and a
@@ -58,7 +59,7 @@ from sdcnet.dataset_format import Sample, SampleStore, read_sample
 from sdcnet.npyio import npy_bytes
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.runtime.onnx import OnnxModel
-from sdcnet.service.decode import frame_of
+from sdcnet.service.decode import InputLimits, frame_of
 from sdcnet.service.inference import Engine, PhaseTimer, complete_frame
 from sdcnet.service.settings import Settings
 from tests.support.frames import generated_samples, multipart_body, png_bytes
@@ -134,8 +135,8 @@ def real_mesh_frame(folder: Path, mesh: str) -> tuple[Sample, str]:
 class Paths:
     """Every way of completing one frame, each a callable that returns a ``Shot``."""
 
-    def __init__(self, url: str, engine: Engine, sample: Sample, work: Path, max_pixels: int):
-        self.url, self.engine, self.max_pixels = url, engine, max_pixels
+    def __init__(self, url: str, engine: Engine, sample: Sample, work: Path, limits: InputLimits):
+        self.url, self.engine, self.limits = url, engine, limits
         self.gray = sample.gray
         self.returns = returns_from_dense(sample.sparse)
         self.client = Client(url)
@@ -180,8 +181,10 @@ class Paths:
         timer = PhaseTimer()
         start = time.perf_counter()
         with timer("decode"):
-            frame = frame_of(self.gray, None, self.returns, self.max_pixels)
-        complete_frame(self.engine, frame, self.max_pixels, timer)
+            frame = frame_of(self.gray, None, self.returns, self.limits)
+        done = complete_frame(self.engine, frame, timer)
+        with timer("encode"):  # the normals are made when an answer carries them, as here
+            assert done.normals.shape == done.points.shape
         return Shot(time.perf_counter() - start, {p: s * 1e3 for p, s in timer.seconds.items()})
 
     def python_client(self) -> Shot:
@@ -334,7 +337,8 @@ def main(argv: list[str] | None = None) -> int:
     frames = [test_split_frame(args.data), real_mesh_frame(args.meshes, args.mesh)]
     results = {}
     load_before = os.getloadavg()
-    max_pixels = Settings().max_pixels
+    settings = Settings()
+    limits = InputLimits(settings.max_pixels, settings.max_returns)
     with tempfile.TemporaryDirectory() as work:
         path, model = benchmark_model(args.model, Path(work))
         log = Path(work) / "serve.log"
@@ -343,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
             # the service's own session options: threads, and its idle threads sleeping
             engine = Engine(OnnxModel(path, "cpu", args.threads, Settings().spin_wait))
             for sample, description in frames:
-                paths = Paths(service.url, engine, sample, Path(work), max_pixels)
+                paths = Paths(service.url, engine, sample, Path(work), limits)
                 try:
                     rows = summarise(measure(paths, service.pid, args.rounds))
                 finally:

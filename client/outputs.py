@@ -4,8 +4,8 @@
 (the depth's 1-sigma uncertainty, 0 outside the mask), ``mask.png`` 8-bit (255 = spacecraft),
 ``points.ply`` binary PLY (camera frame, metres; each point's unit normal as the vertex
 properties ``nx``, ``ny``, ``nz`` and its sigma as ``sigma``, as the service's PLY answer) and
-``preview.png``: the gray image, the coloured depth, its sigma, the mask and a side view of the
-point cloud, side by side, zoomed on the spacecraft.
+``preview.png``: the gray image, the coloured depth, its sigma, the points' normals, the mask
+and a side view of the point cloud, side by side, zoomed on the spacecraft.
 """
 
 from __future__ import annotations
@@ -18,7 +18,15 @@ import numpy as np
 from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Completion
 from sdcnet.pointcloud import point_pixels, write_ply
-from sdcnet.visualize import colorize_depth, gray_bgr, labelled, montage, object_crop, side_view
+from sdcnet.visualize import (
+    colorize_depth,
+    colorize_normals,
+    gray_bgr,
+    labelled,
+    montage,
+    object_crop,
+    side_view,
+)
 
 OUTPUT_FILES = ("depth.npy", "sigma.npy", "mask.png", "points.ply", "preview.png")
 
@@ -43,7 +51,8 @@ def sigma_caption(result: Completion) -> str:
 
 
 def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray:
-    """BGR montage: gray | coloured depth | coloured sigma | mask | point-cloud side view."""
+    """BGR montage: gray | coloured depth | coloured sigma | normals | mask | point-cloud side
+    view."""
     window = object_crop(result.mask)
     valid = result.depth[result.mask & (result.depth > 0)]
     depth_caption = (
@@ -56,6 +65,7 @@ def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray
                 labelled(gray_bgr(gray[window]), "gray"),
                 labelled(colorize_depth(result.depth[window]), depth_caption),
                 labelled(colorize_depth(result.sigma[window]), sigma_caption(result)),
+                labelled(colorize_normals(normal_image(result)[window]), "normals"),
                 labelled(gray_bgr(mask), f"mask {int(result.mask.sum())} px"),
                 labelled(side_view(result.points, tile), f"side view {len(result.points)} pts"),
             ]
@@ -64,12 +74,23 @@ def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray
     )
 
 
-def point_sigma(result: Completion) -> np.ndarray:
-    """float32 (N,) metres: the sigma of each point, read at the pixel it was made from."""
+def pixels_of_points(result: Completion) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the pixel each point was made from."""
     height, width = result.depth.shape
     K = Intrinsics(**result.meta["intrinsics"], width=width, height=height)
-    rows, cols = point_pixels(result.points, K)
-    return result.sigma[rows, cols]
+    return point_pixels(result.points, K)
+
+
+def point_sigma(result: Completion) -> np.ndarray:
+    """float32 (N,) metres: the sigma of each point, read at the pixel it was made from."""
+    return result.sigma[pixels_of_points(result)]
+
+
+def normal_image(result: Completion) -> np.ndarray:
+    """float32 (H, W, 3): each point's normal at its pixel, 0 where there is no point."""
+    image = np.zeros((*result.depth.shape, 3), np.float32)
+    image[pixels_of_points(result)] = result.normals
+    return image
 
 
 def write_outputs(out: Path, gray: np.ndarray, result: Completion) -> list[Path]:

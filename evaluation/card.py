@@ -185,7 +185,9 @@ def model_card(
             lines += [
                 "Depth on the pixels each method shares with the classical fill (the fill's own "
                 "error in brackets), by distance to the nearest LIDAR return; normals on the "
-                "interior of true ∩ predicted foreground; false specks per image:",
+                "interior of true ∩ predicted foreground (of a model run through the pipeline, "
+                "the normals it answers, `sdcnet.normals`; of stored answers and the fill, "
+                "their depth maps'); false specks per image:",
                 "",
                 depth_table(report["results"]),
                 "",
@@ -211,8 +213,10 @@ def model_card(
             "`sdc-eval robustness`: frames of spacecraft never trained on (the test split's "
             "models and the real meshes) per condition (`docs/dataset.md`); IOU with the "
             "fill's in brackets, depth MAE on the pixels shared with the fill (the fill's in "
-            "brackets) overall and by distance to the nearest return, mean normal error, false "
-            "specks per frame, in-process milliseconds per frame on 2 threads.",
+            "brackets) overall and by distance to the nearest return, mean normal error (of a "
+            "model run through the pipeline, the normals it answers; of stored answers and the "
+            "fill, their depth maps'), false specks per frame, in-process milliseconds per "
+            "frame on 2 threads.",
             "",
             table_of(robustness),
             "",

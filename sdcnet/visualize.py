@@ -25,6 +25,16 @@ def colorize_depth(
     return out
 
 
+def colorize_normals(normals: np.ndarray) -> np.ndarray:
+    """BGR image of unit normals (H, W, 3, camera frame: x right, y down, z forward) in the
+    usual normal-map colours: red = right, green = up, blue = towards the camera, each from
+    -1..1 to 0..255; black where the normal is 0 (no point there)."""
+    rgb = normals * np.array([0.5, -0.5, -0.5], np.float32) + np.float32(0.5)
+    out = np.clip(rgb[..., ::-1] * 255, 0, 255).astype(np.uint8)
+    out[~normals.any(axis=-1)] = 0
+    return out
+
+
 def dilated_returns(sparse: np.ndarray, radius: int = 3, near=None, far=None) -> np.ndarray:
     """Sparse LIDAR returns drawn as coloured dots, so a person can see them."""
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))

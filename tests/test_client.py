@@ -106,7 +106,7 @@ def test_infer_writes_five_files_that_match_the_service(url, frame_files, tmp_pa
         np.testing.assert_array_equal(cloud.properties[name], served.properties[name])
 
     preview = cv2.imread(str(out / "preview.png"))
-    assert preview.shape == (320, 5 * 320 + 4 * 4, 3)
+    assert preview.shape == (320, 6 * 320 + 5 * 4, 3)
     printed = capsys.readouterr().out
     assert TINY_VERSION in printed and f"points    {len(points):,}" in printed
     median = np.median(expected["sigma"][expected["mask"].astype(bool)])
