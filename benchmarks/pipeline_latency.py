@@ -30,9 +30,9 @@ from benchmarks.common import DOCS, cpu_description, write_markdown
 from sdcnet.allocator import configure_malloc
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
-from sdcnet.normals import normals_at
+from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import complete
-from sdcnet.pointcloud import back_project, mask_pixels
+from sdcnet.pointcloud import back_project
 from sdcnet.runtime.onnx import OnnxModel
 
 BUDGET_MS = 100.0
@@ -56,7 +56,7 @@ def time_frames(
             model.run, sample.gray, sample.sparse, K.fx, info.stride, info.work_pixels
         )
         back_project(result.depth, result.mask, K)
-        normals_at(result, *mask_pixels(result.mask), K)
+        cloud_normals(result, result.mask & (result.depth > 0), K)
 
     for model in models.values():
         for sample in samples[:2]:

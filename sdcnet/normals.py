@@ -19,11 +19,14 @@ frames): 19.2 degrees for the depth map's 3 x 3 central differences, 17.5 for th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
 from sdcnet.camera import Intrinsics
 from sdcnet.pipeline import Completion, WorkingGrid
+from sdcnet.pointcloud import BAND_PIXELS, mask_pixels
 
 #: Length of the one-sided differences, in working pixels: 1 follows the completion's
 #: ripple, 3 is within 0.1 degree of any longer step on the real spacecraft (docs/development.md).
@@ -92,26 +95,68 @@ def working_lookup(grid: WorkingGrid, frame_size: int, axis: int, first: int, si
     return np.clip(working, 0, size - 1)
 
 
+@dataclass(frozen=True)
+class WorkingNormals:
+    """A completed frame's unit normals on the working mask's box, grown by a step (``unit``:
+    (h * w, 3) float32, row-major), and for each frame row and column the box's row and column
+    it falls in (``rows``, ``cols``: int32 tables, ``working_lookup``)."""
+
+    unit: np.ndarray
+    rows: np.ndarray
+    cols: np.ndarray
+    width: int
+
+    @classmethod
+    def of(cls, completion: Completion, intrinsics: Intrinsics) -> WorkingNormals:
+        """The normals of ``completion``'s surface on its working mask's box."""
+        mask = completion.working_mask
+        x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+        y0, x0 = max(y - NORMAL_STEP_PX, 0), max(x - NORMAL_STEP_PX, 0)
+        box = np.s_[y0 : y + h + NORMAL_STEP_PX, x0 : x + w + NORMAL_STEP_PX]
+        depth = completion.surface[box]
+        nx, ny, nz = normal_directions(depth, mask[box], completion.grid, intrinsics, (y0, x0))
+        length = np.sqrt(nx * nx + ny * ny + nz * nz) + np.float32(1e-30)
+        unit = np.stack([nx / length, ny / length, nz / length], axis=-1).reshape(-1, 3)
+        height, width = completion.mask.shape
+        rows = working_lookup(completion.grid, height, 0, y0, depth.shape[0])
+        cols = working_lookup(completion.grid, width, 1, x0, depth.shape[1])
+        return cls(unit, rows, cols, depth.shape[1])
+
+    def at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(N, 3) float32: the normals at frame pixels ``rows``, ``cols``, each its working
+        pixel's (a pixel beyond the box takes the nearest of the box's)."""
+        return self.unit[self.rows[rows] * np.int32(self.width) + self.cols[cols]]
+
+
 def normals_at(
     completion: Completion, rows: np.ndarray, cols: np.ndarray, intrinsics: Intrinsics
 ) -> np.ndarray:
     """(N, 3) float32 unit normals, camera frame, facing the camera, of a completed frame at
-    its pixels ``rows``, ``cols`` (frame pixels, e.g. its cloud's points in their order): each
-    the normal of the working pixel it falls in. Only the working mask's box, grown by a step,
-    is computed (a pixel beyond it takes the normal of the box's nearest)."""
-    mask = completion.working_mask
-    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
-    y0, x0 = max(y - NORMAL_STEP_PX, 0), max(x - NORMAL_STEP_PX, 0)
-    box = np.s_[y0 : y + h + NORMAL_STEP_PX, x0 : x + w + NORMAL_STEP_PX]
-    depth = completion.surface[box]
-    nx, ny, nz = normal_directions(depth, mask[box], completion.grid, intrinsics, (y0, x0))
-    length = np.sqrt(nx * nx + ny * ny + nz * nz) + np.float32(1e-30)
-    unit = np.stack([nx / length, ny / length, nz / length], axis=-1).reshape(-1, 3)
-    height, width = completion.mask.shape
-    box_rows = working_lookup(completion.grid, height, 0, y0, depth.shape[0])
-    box_cols = working_lookup(completion.grid, width, 1, x0, depth.shape[1])
-    at = box_rows[rows] * np.int32(depth.shape[1]) + box_cols[cols]
-    return unit[at]
+    its pixels ``rows``, ``cols`` (frame pixels): each the normal of the working pixel it falls
+    in."""
+    return WorkingNormals.of(completion, intrinsics).at(rows, cols)
+
+
+def cloud_normals(
+    completion: Completion,
+    pixels: np.ndarray,
+    intrinsics: Intrinsics,
+    band_pixels: int = BAND_PIXELS,
+) -> np.ndarray:
+    """(N, 3) float32 unit normals of a completed frame at the True pixels of ``pixels`` (H, W
+    bool), in row-major order: those of the points ``back_project`` makes of them (pixels of
+    depth > 0). Found ``band_pixels`` at a time, so that beside the answer a million points
+    cost a band's indices."""
+    normals = WorkingNormals.of(completion, intrinsics)
+    x0, y0, width, height = cv2.boundingRect(pixels.view(np.uint8))
+    out = np.empty((int(np.count_nonzero(pixels)), 3), np.float32)
+    step = max(1, band_pixels // max(width, 1))
+    at = 0
+    for y in range(y0, y0 + height, step):
+        rows, cols = mask_pixels(pixels[y : y + step, x0 : x0 + width])
+        out[at : at + len(rows)] = normals.at(rows + y, cols + x0)
+        at += len(rows)
+    return out
 
 
 def normal_map(completion: Completion, intrinsics: Intrinsics) -> np.ndarray:

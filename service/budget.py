@@ -29,8 +29,9 @@ WARM_MIB = 240
 FIXED_MIB = 40
 BYTES_PER_PIXEL = 56
 #: Bytes of the largest answer per pixel of its frame: a JSON answer of a frame all foreground
-#: (float32 depth, uint8 mask, float32 sigma, float32 x, y, z per pixel: 21 bytes, as base64).
-ANSWER_BYTES_PER_PIXEL = 28
+#: (float32 depth, uint8 mask, float32 sigma, float32 x, y, z and the normal's three per
+#: pixel: 33 bytes, as base64).
+ANSWER_BYTES_PER_PIXEL = 44
 
 
 @dataclass(frozen=True)

@@ -21,9 +21,9 @@ import numpy as np
 
 from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.compact import mask_window
-from sdcnet.normals import normals_at
+from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import Completion, Region, complete
-from sdcnet.pointcloud import back_project, mask_pixels, statistical_outliers, trusted_pixels
+from sdcnet.pointcloud import back_project, statistical_outliers, trusted_pixels
 from sdcnet.runtime.interface import ModelLoadError, Runtime
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
@@ -153,8 +153,7 @@ class Completed:
     def normals(self) -> np.ndarray:
         """float32 (N, 3): each point's unit surface normal, camera frame, facing the camera,
         in the order of ``points`` (``sdcnet.normals``)."""
-        rows, cols = mask_pixels(self.kept)
-        return normals_at(self.completion, rows, cols, self.intrinsics)
+        return cloud_normals(self.completion, self.kept, self.intrinsics)
 
     @functools.cached_property
     def point_sigma(self) -> np.ndarray:

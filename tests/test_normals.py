@@ -10,7 +10,13 @@ import pytest
 
 from sdcnet.camera import Intrinsics
 from sdcnet.metrics import surface_normals
-from sdcnet.normals import NORMAL_STEP_PX, normal_directions, normal_map, normals_at
+from sdcnet.normals import (
+    NORMAL_STEP_PX,
+    cloud_normals,
+    normal_directions,
+    normal_map,
+    normals_at,
+)
 from sdcnet.pipeline import Completion, Region, WorkingGrid
 
 K = Intrinsics(fx=800.0, fy=760.0, cx=150.0, cy=110.0, width=320, height=240)
@@ -105,3 +111,17 @@ def test_normals_follow_the_order_of_the_pixels_asked():
     assert angles_deg(got[1], unit(0.0, 0.0, -1.0)) < 0.2
     assert angles_deg(got[0], unit(0.6, 0.0, -1.0)) < 0.2
     assert angles_deg(got[2], unit(0.6, 0.0, -1.0)) < 0.2
+
+
+def test_the_cloud_normals_are_those_of_its_pixels_in_row_major_order_band_by_band():
+    grid = WorkingGrid(Region(10, 200, 20, 300), (95, 140))  # a crop shrunk to half
+    depth_w = working_plane(unit(0.2, -0.4, -1.0), -45.0, grid)
+    depth_w[:, 70:] = working_plane(unit(-0.5, 0.1, -1.0), -48.0, grid)[:, 70:]
+    completion = completion_of(depth_w, np.ones(grid.shape, bool), grid)
+    pixels = np.zeros(completion.mask.shape, bool)
+    pixels[30:180:3, 40:290:2] = True  # as outlier removal and max_sigma leave a cloud
+    rows, cols = np.nonzero(pixels)
+    whole = normals_at(completion, rows, cols, K)
+    banded = cloud_normals(completion, pixels, K, band_pixels=500)  # a band of 1-2 rows
+    np.testing.assert_array_equal(banded, whole)
+    assert banded.shape == (pixels.sum(), 3)
