@@ -7,14 +7,18 @@ instead on the working grid, from the surface the pipeline answered with
 (``Completion.surface``, smoothed between the returns), with one-sided differences
 ``NORMAL_STEP_PX`` working pixels long: of a pixel's two sides along each axis, the one on the
 mask, and of two on the mask, the one whose depth changes less (the side that does not cross an
-edge). They are computed in closed form from the depth's two derivatives
-(``normal_directions``) on the working mask's box, a cost bounded by the working budget, and
-each point takes its working pixel's: 2-6 ms at the median for the suite's docking frames (up
-to 425,000 points), 15 ms at most.
+edge), in closed form from the depth's two derivatives (``normal_directions``). They are then
+smoothed by a guided filter (He and Sun) whose guide is the image the network saw
+(``guided_normals``): a facet of the spacecraft lit alike is one plane, so within it the
+normals are averaged over ``GUIDE_RADIUS_PX``, and where the shading changes (a fold, a
+panel's rim) the filter follows the image instead of averaging across; what the surface got
+wrong next to a depth edge is pulled towards the rest of its facet. All of it runs on the
+working mask's box, a cost bounded by the working budget, and each point takes its working
+pixel's normal.
 
 Measured on the eight real spacecraft (mean angle to the true normals, ``make reports``'
-frames): 19.2 degrees for the depth map's 3 x 3 central differences, 17.5 for these
-(docs/development.md, "Measurements").
+frames): 19.2 degrees for the depth map's 3 x 3 central differences, 17.5 for the one-sided
+differences, 15.8 guided by the image (docs/development.md, "Measurements").
 """
 
 from __future__ import annotations
@@ -31,6 +35,13 @@ from sdcnet.pointcloud import BAND_PIXELS, mask_pixels
 #: Length of the one-sided differences, in working pixels: 1 follows the completion's
 #: ripple, 3 is within 0.1 degree of any longer step on the real spacecraft (docs/development.md).
 NORMAL_STEP_PX = 3
+#: The guided filter's windows reach this many working pixels from their centre ...
+GUIDE_RADIUS_PX = 8
+#: ... and its regularisation is this variance of the guide, the image scaled to 0.5 at its
+#: median on the mask (so that an 8-bit, a 12-bit and a dim frame are guided alike).
+GUIDE_EPS = 1e-3
+#: ... its fits made on a grid this many times coarser (a quarter of the pixels).
+GUIDE_SUBSAMPLE = 2
 
 
 def one_sided_difference(
@@ -84,6 +95,62 @@ def normal_directions(
     return np.float32(intrinsics.fx) * z_u, np.float32(intrinsics.fy) * z_v, nz
 
 
+def unit_vectors(vectors: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """The x, y, z (each (h, w) float32) of ``vectors``' directions, of unit length."""
+    x, y, z = vectors
+    length = np.sqrt(x * x + y * y + z * z) + np.float32(1e-30)
+    return x / length, y / length, z / length
+
+
+def guided_normals(
+    directions: tuple[np.ndarray, ...],
+    gray: np.ndarray,
+    mask: np.ndarray,
+    radius: int = GUIDE_RADIUS_PX,
+    eps: float = GUIDE_EPS,
+) -> tuple[np.ndarray, ...]:
+    """The normals' x, y, z (each (h, w) float32, not of unit length) of ``directions`` on
+    ``mask`` (h, w bool), smoothed by a guided filter whose guide is ``gray`` (h, w, the image
+    on the same grid): in each window, each coordinate of the unit normals as a linear function
+    of the gray level, fitted on the mask's pixels alone (the sky beside the spacecraft does
+    not count), and the fits of the windows holding a pixel averaged there. The fits are made
+    on a grid ``GUIDE_SUBSAMPLE`` times coarser and applied to the full grid's gray level (the
+    fast guided filter: the same windows at a quarter of the pixels)."""
+    median = float(np.median(gray[mask])) if mask.any() else 1.0
+    guide = gray.astype(np.float32) * np.float32(0.5 / max(median, 1e-3))
+    size = (
+        max(1, -(-mask.shape[1] // GUIDE_SUBSAMPLE)),
+        max(1, -(-mask.shape[0] // GUIDE_SUBSAMPLE)),
+    )
+    window = (2 * (radius // GUIDE_SUBSAMPLE) + 1,) * 2
+
+    def coarse(values: np.ndarray) -> np.ndarray:
+        return cv2.resize(values, size, interpolation=cv2.INTER_AREA)
+
+    def sums(values: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(values, -1, window, normalize=False)
+
+    weight = mask.astype(np.float32)
+    share = coarse(weight)  # the mask's share of each coarse pixel
+    present = share + np.float32(1e-6)
+    small_guide = coarse(guide * weight) / present
+    count = sums(share) + np.float32(1e-6)
+    mean_guide = sums(small_guide * share) / count
+    variance = sums(small_guide * small_guide * share) / count - mean_guide * mean_guide
+    out = []
+    for values in unit_vectors(directions):
+        small = coarse(values * weight) / present
+        mean_values = sums(small * share) / count
+        covariance = sums(small_guide * small * share) / count - mean_guide * mean_values
+        slope = covariance / (variance + np.float32(eps))
+        offset = mean_values - slope * mean_guide
+        full = (mask.shape[1], mask.shape[0])
+        slope = cv2.resize(cv2.blur(slope, window), full, interpolation=cv2.INTER_LINEAR)
+        offset = cv2.resize(cv2.blur(offset, window), full, interpolation=cv2.INTER_LINEAR)
+        out.append(slope * guide + offset)
+    return tuple(out)
+
+
 def working_lookup(grid: WorkingGrid, frame_size: int, axis: int, first: int, size: int):
     """For each frame row (``axis`` 0) or column (1) of a frame ``frame_size`` pixels along it,
     the index (int32) of the working row or column it falls in, counted from ``first`` and
@@ -114,9 +181,9 @@ class WorkingNormals:
         y0, x0 = max(y - NORMAL_STEP_PX, 0), max(x - NORMAL_STEP_PX, 0)
         box = np.s_[y0 : y + h + NORMAL_STEP_PX, x0 : x + w + NORMAL_STEP_PX]
         depth = completion.surface[box]
-        nx, ny, nz = normal_directions(depth, mask[box], completion.grid, intrinsics, (y0, x0))
-        length = np.sqrt(nx * nx + ny * ny + nz * nz) + np.float32(1e-30)
-        unit = np.stack([nx / length, ny / length, nz / length], axis=-1).reshape(-1, 3)
+        directions = normal_directions(depth, mask[box], completion.grid, intrinsics, (y0, x0))
+        guided = guided_normals(directions, completion.working_gray[box], mask[box])
+        unit = np.stack(unit_vectors(guided), axis=-1).reshape(-1, 3)
         height, width = completion.mask.shape
         rows = working_lookup(completion.grid, height, 0, y0, depth.shape[0])
         cols = working_lookup(completion.grid, width, 1, x0, depth.shape[1])

@@ -394,6 +394,7 @@ class Completion:
     grid: WorkingGrid
     surface: np.ndarray  # (h', w') float32 metres on the working grid: what depth resamples
     working_mask: np.ndarray  # (h', w') bool: the mask on the working grid
+    working_gray: np.ndarray  # (h', w') float32 in [0, 1]: the image the network saw
     sigma: np.ndarray | None = None  # (H, W) float32 metres, 0 off the mask; None: model has none
 
     @property
@@ -646,4 +647,4 @@ def complete(
     if sigma_w is not None:
         sigma_box = resample_depth(anchored_sigma(sigma_w, anchored), shape, math.inf, box)
         sigma = on_mask(sigma_box, mask, at)
-    return Completion(depth, mask, prob_crop, grid, surface, mask_w, sigma)
+    return Completion(depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma)
