@@ -30,7 +30,7 @@ import numpy as np
 
 from sdcnet.camera import Intrinsics
 from sdcnet.pipeline import Completion, WorkingGrid
-from sdcnet.pointcloud import BAND_PIXELS, mask_pixels
+from sdcnet.pointcloud import BAND_PIXELS
 
 #: Length of the one-sided differences, in working pixels: 1 follows the completion's
 #: ripple, 3 is within 0.1 degree of any longer step on the real spacecraft (docs/development.md).
@@ -219,10 +219,14 @@ def cloud_normals(
     out = np.empty((int(np.count_nonzero(pixels)), 3), np.float32)
     step = max(1, band_pixels // max(width, 1))
     at = 0
+    columns = normals.cols[x0 : x0 + width]
     for y in range(y0, y0 + height, step):
-        rows, cols = mask_pixels(pixels[y : y + step, x0 : x0 + width])
-        out[at : at + len(rows)] = normals.at(rows + y, cols + x0)
-        at += len(rows)
+        chosen = pixels[y : y + step, x0 : x0 + width]
+        # each pixel of the band's index into the box's normals, then the chosen ones'
+        index = normals.rows[y : y + step, None] * np.int32(normals.width) + columns
+        found = normals.unit[index[chosen]]
+        out[at : at + len(found)] = found
+        at += len(found)
     return out
 
 
