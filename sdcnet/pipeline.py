@@ -386,7 +386,8 @@ def guided_probability(
 class Completion:
     """The answer on the whole frame, zero outside the spacecraft's crop (``grid.region``):
     depth in metres and sigma (0 off the mask), mask; the foreground probability on the crop,
-    the whole frame on demand."""
+    the whole frame on demand; and on the working grid the surface, mask and image the
+    normals of the answer's points are taken from (``sdcnet.normals``)."""
 
     depth: np.ndarray  # (H, W) float32 metres, 0 off the mask
     mask: np.ndarray  # (H, W) bool
