@@ -35,12 +35,12 @@ from sdcnet.pointcloud import BAND_PIXELS
 #: Length of the one-sided differences, in working pixels: 1 follows the completion's
 #: ripple, 3 is within 0.1 degree of any longer step on the real spacecraft (docs/development.md).
 NORMAL_STEP_PX = 3
-#: The guided filter's windows reach this many working pixels from their centre ...
+#: The guided filter's windows reach this many working pixels from their centre, ...
 GUIDE_RADIUS_PX = 8
-#: ... and its regularisation is this variance of the guide, the image scaled to 0.5 at its
-#: median on the mask (so that an 8-bit, a 12-bit and a dim frame are guided alike).
+#: ... its regularisation is this variance of the guide, the image scaled to 0.5 at its
+#: median on the mask (so that an 8-bit, a 12-bit and a dim frame are guided alike), ...
 GUIDE_EPS = 1e-3
-#: ... its fits made on a grid this many times coarser (a quarter of the pixels).
+#: ... and its fits are made on a grid this many times coarser (a quarter of the pixels).
 GUIDE_SUBSAMPLE = 2
 
 
@@ -137,6 +137,7 @@ def guided_normals(
     count = sums(share) + np.float32(1e-6)
     mean_guide = sums(small_guide * share) / count
     variance = sums(small_guide * small_guide * share) / count - mean_guide * mean_guide
+    full = (mask.shape[1], mask.shape[0])
     out = []
     for values in unit_vectors(directions):
         small = coarse(values * weight) / present
@@ -144,7 +145,6 @@ def guided_normals(
         covariance = sums(small_guide * small * share) / count - mean_guide * mean_values
         slope = covariance / (variance + np.float32(eps))
         offset = mean_values - slope * mean_guide
-        full = (mask.shape[1], mask.shape[0])
         slope = cv2.resize(cv2.blur(slope, window), full, interpolation=cv2.INTER_LINEAR)
         offset = cv2.resize(cv2.blur(offset, window), full, interpolation=cv2.INTER_LINEAR)
         out.append(slope * guide + offset)
