@@ -183,8 +183,8 @@ class Paths:
         with timer("decode"):
             frame = frame_of(self.gray, None, self.returns, self.limits)
         done = complete_frame(self.engine, frame, timer)
-        with timer("encode"):  # the normals are made when an answer carries them, as here
-            assert done.normals.shape == done.points.shape
+        with timer("encode"):  # the normals are made when an answer carries them
+            _ = done.normals
         return Shot(time.perf_counter() - start, {p: s * 1e3 for p, s in timer.seconds.items()})
 
     def python_client(self) -> Shot:

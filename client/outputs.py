@@ -50,9 +50,14 @@ def sigma_caption(result: Completion) -> str:
     return f"sigma {100 * sigma.min():.1f}-{100 * sigma.max():.1f} cm"
 
 
-def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray:
+def preview(
+    gray: np.ndarray,
+    result: Completion,
+    pixels: tuple[np.ndarray, np.ndarray],
+    tile: int = 320,
+) -> np.ndarray:
     """BGR montage: gray | coloured depth | coloured sigma | normals | mask | point-cloud side
-    view."""
+    view; ``pixels``: those of the points (``pixels_of_points``)."""
     window = object_crop(result.mask)
     valid = result.depth[result.mask & (result.depth > 0)]
     depth_caption = (
@@ -65,7 +70,7 @@ def preview(gray: np.ndarray, result: Completion, tile: int = 320) -> np.ndarray
                 labelled(gray_bgr(gray[window]), "gray"),
                 labelled(colorize_depth(result.depth[window]), depth_caption),
                 labelled(colorize_depth(result.sigma[window]), sigma_caption(result)),
-                labelled(colorize_normals(normal_image(result)[window]), "normals"),
+                labelled(colorize_normals(normal_image(result, pixels)[window]), "normals"),
                 labelled(gray_bgr(mask), f"mask {int(result.mask.sum())} px"),
                 labelled(side_view(result.points, tile), f"side view {len(result.points)} pts"),
             ]
@@ -81,15 +86,11 @@ def pixels_of_points(result: Completion) -> tuple[np.ndarray, np.ndarray]:
     return point_pixels(result.points, K)
 
 
-def point_sigma(result: Completion) -> np.ndarray:
-    """float32 (N,) metres: the sigma of each point, read at the pixel it was made from."""
-    return result.sigma[pixels_of_points(result)]
-
-
-def normal_image(result: Completion) -> np.ndarray:
-    """float32 (H, W, 3): each point's normal at its pixel, 0 where there is no point."""
+def normal_image(result: Completion, pixels: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """float32 (H, W, 3): each point's normal at its pixel (``pixels``), 0 where there is no
+    point."""
     image = np.zeros((*result.depth.shape, 3), np.float32)
-    image[pixels_of_points(result)] = result.normals
+    image[pixels] = result.normals
     return image
 
 
@@ -106,10 +107,11 @@ def write_outputs(out: Path, gray: np.ndarray, result: Completion) -> list[Path]
         "sigma: the depth's 1-sigma uncertainty, metres",
         f"model_version {result.model_version}",
     )
+    pixels = pixels_of_points(result)
     normals = dict(zip(("nx", "ny", "nz"), result.normals.T, strict=True))
-    properties = {**normals, "sigma": point_sigma(result)}
+    properties = {**normals, "sigma": result.sigma[pixels]}  # each point's own pixel's
     write_ply(paths["points.ply"], result.points, comments, properties)
-    cv2.imwrite(str(paths["preview.png"]), preview(gray_for_display(gray), result))
+    cv2.imwrite(str(paths["preview.png"]), preview(gray_for_display(gray), result, pixels))
     return list(paths.values())
 
 

@@ -129,25 +129,41 @@ def self_test(model: Runtime) -> None:
 
 @dataclass
 class Completed:
-    """One completed frame, before any protocol serialises it: depth float32 (H, W) metres,
-    mask bool (H, W), sigma float32 (H, W) metres (the depth's 1-sigma uncertainty, 0 off the
-    mask), points float32 (N, 3) metres of the ``kept`` pixels (bool (H, W)), the region the
-    network saw (everything outside it is 0), the intrinsics used, the summary's counts and
-    the sigma above which points left the cloud (metres; ``None``: no limit); and the pipeline's
-    answer the normals of the points are taken from, when a protocol asks for them."""
+    """One completed frame, before any protocol serialises it: the pipeline's answer
+    (``completion``: depth, mask and sigma, the region the network saw, and what the points'
+    normals are taken from), points float32 (N, 3) metres of the ``kept`` pixels (bool (H, W)),
+    the intrinsics used, the summary's counts and the sigma above which points left the cloud
+    (metres; ``None``: no limit)."""
 
-    depth: np.ndarray
-    mask: np.ndarray
-    sigma: np.ndarray
+    completion: Completion
     points: np.ndarray
     kept: np.ndarray
-    region: Region
     intrinsics: Intrinsics
     returns: int
     outliers_removed: int
     uncertain_removed: int
     sigma_limit: float | None
-    completion: Completion
+
+    @property
+    def depth(self) -> np.ndarray:
+        """float32 (H, W) metres, 0 off the mask."""
+        return self.completion.depth
+
+    @property
+    def mask(self) -> np.ndarray:
+        """bool (H, W), True = spacecraft."""
+        return self.completion.mask
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """float32 (H, W) metres: the depth's 1-sigma uncertainty, 0 off the mask (every
+        served model has one: ``load_model``'s self-test)."""
+        return self.completion.sigma
+
+    @property
+    def region(self) -> Region:
+        """The region the network saw: everything outside it is 0."""
+        return self.completion.region
 
     @functools.cached_property
     def normals(self) -> np.ndarray:
@@ -222,18 +238,14 @@ def complete_frame(
         points = back_project(depth, kept, K)
         trusted_count = int(np.count_nonzero(trusted))
     return Completed(
-        depth=depth,
-        mask=result.mask,
-        sigma=sigma,
+        completion=result,
         points=points,
         kept=kept,
-        region=result.region,
         intrinsics=K,
         returns=int(np.count_nonzero(frame.sparse)),
         outliers_removed=trusted_count - len(points),
         uncertain_removed=int(np.count_nonzero(valid)) - trusted_count,
         sigma_limit=limit,
-        completion=result,
     )
 
 
