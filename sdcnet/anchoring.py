@@ -33,7 +33,9 @@ Anchoring changes how far the depth can be trusted, and the returns say how good
 was on this frame, so the network's sigma is recombined with what they measured
 (``anchored_sigma``): it is first rescaled by the frame's median ratio of the network's error
 at the returns to its sigma there (a frame of another camera, LIDAR or sky is harder or easier
-than the frames sigma was calibrated on, and the returns show which); it counts
+than the frames sigma was calibrated on, and the returns show which; a handful of returns,
+which the network saw and copied, shows only that it copied them, so from fewer than
+``MIN_RETURNS_FOR_RATIO`` the ratio never lowers the network's own sigma); it counts
 ``SIGMA_AT_RETURN`` times at a return and grows with the lateral distance to the nearest
 return in metres (``SIGMA_PER_APART_M``: a surface strays from what was measured on it with
 how far one goes, whatever the camera or LIDAR; a distance in pixels or in return spacings
@@ -94,6 +96,13 @@ SIGMA_PER_DISAGREEMENT = 0.34
 #: The frame's error ratio is at least this: a network that fits the returns exactly is not
 #: exact between them.
 MIN_ERROR_RATIO = 0.02
+#: From fewer returns on the mask than this, the ratio is at least ``NETWORK_RATIO``: the
+#: network sees the returns, so its error at a few of them says little of its error between
+#: them (flash and multi-beam frames of 1-6 returns on a boom, matched within 2 cm, were off
+#: by metres a little further; docs/development.md, "Measurements").
+MIN_RETURNS_FOR_RATIO = 20
+#: The ratio that leaves ``anchored_sigma`` the network's own sigma at a return.
+NETWORK_RATIO = 1.0 / SIGMA_AT_RETURN
 
 
 @dataclass(frozen=True)
@@ -218,12 +227,13 @@ def nearest_return(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def error_ratio(sigma: np.ndarray, anchored: Anchored) -> float:
     """The frame's median of |residual| / ``sigma`` at the returns on the mask (at least
-    ``MIN_ERROR_RATIO``); without such returns, the ratio that leaves ``anchored_sigma`` the
-    network's own sigma."""
+    ``MIN_ERROR_RATIO``, and at least ``NETWORK_RATIO`` from fewer than
+    ``MIN_RETURNS_FOR_RATIO`` returns); without such returns, ``NETWORK_RATIO``."""
     if anchored.residual.size == 0:
-        return 1.0 / SIGMA_AT_RETURN
+        return NETWORK_RATIO
     at_returns = np.maximum(sigma[anchored.rows, anchored.cols], 1e-9)
-    return max(float(np.median(np.abs(anchored.residual) / at_returns)), MIN_ERROR_RATIO)
+    ratio = max(float(np.median(np.abs(anchored.residual) / at_returns)), MIN_ERROR_RATIO)
+    return ratio if anchored.residual.size >= MIN_RETURNS_FOR_RATIO else max(ratio, NETWORK_RATIO)
 
 
 def anchored_sigma(sigma: np.ndarray, anchored: Anchored) -> np.ndarray:

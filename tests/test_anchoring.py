@@ -6,6 +6,9 @@ import numpy as np
 import pytest
 
 from sdcnet.anchoring import (
+    MIN_ERROR_RATIO,
+    MIN_RETURNS_FOR_RATIO,
+    NETWORK_RATIO,
     SIGMA_AT_RETURN,
     SIGMA_BOUNDS_PX,
     SIGMA_PER_APART_M,
@@ -176,6 +179,21 @@ def test_the_sigma_follows_how_wrong_the_network_was_at_the_returns():
         sigmas.append(anchored_sigma(network, anchored)[80, 80])
     # within 1 %: the metres per pixel of apart_m follow the depth, which moved by the error
     assert sigmas[1] == pytest.approx(3 * sigmas[0], rel=1e-2)
+
+
+@pytest.mark.parametrize("count", [1, MIN_RETURNS_FOR_RATIO - 1, MIN_RETURNS_FOR_RATIO])
+def test_a_few_returns_copied_exactly_do_not_lower_the_networks_sigma(count):
+    """A network that matched every return exactly: from many returns the frame is taken as
+    easy (the ratio at its floor); from a few, that says nothing of the depth between them."""
+    truth = tilted_plane()
+    sparse = np.zeros_like(truth)
+    rows, cols = np.divmod(np.arange(count) * 7 % (SIZE * SIZE), SIZE)  # spread over the panel
+    sparse[rows, cols] = truth[rows, cols]
+    anchored = anchor_to_returns(truth, truth > 0, sparse, sigma_px=2.0, focal_px=FOCAL_PX)
+    assert anchored.residual.size == count
+    ratio = error_ratio(np.full(truth.shape, 0.1, np.float32), anchored)
+    few = count < MIN_RETURNS_FOR_RATIO
+    assert ratio == pytest.approx(NETWORK_RATIO if few else MIN_ERROR_RATIO)
 
 
 def test_without_returns_on_the_mask_the_sigma_is_the_networks():
