@@ -13,7 +13,10 @@ module corrects the depth by its residuals at the returns (measured - predicted,
    corrected, less the noise. Most returns lie on surfaces the model fits, so the median
    measures the noise; a bias of the whole surface is mostly taken for noise too
    (``SHRINK`` x ``MAD_TO_STD``, three quarters of it, is left; the rest is corrected near
-   the returns);
+   the returns). A LIDAR's noise is centimetres, not metres: the noise scale is at most
+   ``MAX_NOISE_M`` or ``MAX_NOISE_OF_DEPTH`` of the returns' median depth, whichever is
+   larger; above that the median measures the network's misfit (a few returns on a
+   structure the surface smoothed over) and is corrected as one;
 2. the corrections are spread by a normalised Gaussian convolution (``sigma_px``
    from the returns' spacing): at a return the correction is mostly its own, between returns a
    weighted mean of the near ones, and it fades to nothing a few ``sigma_px`` away from any;
@@ -67,6 +70,11 @@ SIGMA_BOUNDS_PX = (1.5, 6.0)
 SHRINK = 0.5
 #: Median absolute deviation -> standard deviation, for Gaussian noise.
 MAD_TO_STD = 1.4826
+#: The noise scale is at most this many metres or this share of the returns' median depth,
+#: whichever is larger: above the range noise of the LIDARs flown (a few cm, growing with the
+#: distance) with room to spare (docs/development.md, "Measurements").
+MAX_NOISE_M = 0.06
+MAX_NOISE_OF_DEPTH = 1e-3
 
 #: Where the local misfit exceeds this many noise scales (``noise_m``, at least
 #: ``MIN_NOISE_M``) ...
@@ -152,8 +160,12 @@ def anchor_to_returns(
     if len(rows) == 0:
         nothing = np.zeros(depth.shape, np.float32)
         return Anchored(depth, nothing, nothing, nothing, 0.0, rows, cols, np.zeros(0, np.float32))
-    residual = sparse[rows, cols] - depth[rows, cols]
-    noise_m = MAD_TO_STD * float(np.median(np.abs(residual)))
+    measured = sparse[rows, cols]
+    residual = measured - depth[rows, cols]
+    noise_m = min(
+        MAD_TO_STD * float(np.median(np.abs(residual))),
+        max(MAX_NOISE_M, MAX_NOISE_OF_DEPTH * float(np.median(measured))),
+    )
     local = np.sign(residual) * np.maximum(np.abs(residual) - SHRINK * noise_m, 0.0)
     _, centre = gaussian_kernel(sigma_px)
 

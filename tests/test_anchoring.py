@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from sdcnet.anchoring import (
+    MAX_NOISE_M,
+    MAX_NOISE_OF_DEPTH,
     MIN_ERROR_RATIO,
     MIN_RETURNS_FOR_RATIO,
     NETWORK_RATIO,
@@ -179,6 +181,19 @@ def test_the_sigma_follows_how_wrong_the_network_was_at_the_returns():
         sigmas.append(anchored_sigma(network, anchored)[80, 80])
     # within 1 %: the metres per pixel of apart_m follow the depth, which moved by the error
     assert sigmas[1] == pytest.approx(3 * sigmas[0], rel=1e-2)
+
+
+def test_a_surface_off_by_metres_at_every_return_is_not_taken_for_noise():
+    """The network 1 m behind every return: the residuals' median is its misfit, not the
+    LIDAR's noise (centimetres), so the depth is drawn to the returns."""
+    truth = tilted_plane()
+    sparse = returns_of(truth)
+    anchored = anchor_to_returns(truth + 1.0, truth > 0, sparse, sigma_px=2.0, focal_px=FOCAL_PX)
+    cap = max(MAX_NOISE_M, MAX_NOISE_OF_DEPTH * float(np.median(sparse[sparse > 0])))
+    assert anchored.noise_m == pytest.approx(cap)
+    at_returns = sparse > 0
+    np.testing.assert_allclose(anchored.depth[at_returns], truth[at_returns], atol=1e-4)
+    assert np.abs(anchored.depth - truth)[4:-4, 4:-4].max() < 1.0  # nearer everywhere
 
 
 @pytest.mark.parametrize("count", [1, MIN_RETURNS_FOR_RATIO - 1, MIN_RETURNS_FOR_RATIO])
