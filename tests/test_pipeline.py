@@ -4,7 +4,6 @@ import cv2
 import numpy as np
 import pytest
 
-from sdcnet.anchoring import MAD_TO_STD, SHRINK
 from sdcnet.pipeline import (
     FIELD_EDGE_GROWTH,
     MAX_UPSAMPLE,
@@ -122,12 +121,14 @@ def test_complete_runs_on_the_crop_and_pastes_back():
     inner = np.zeros_like(result.mask)
     inner[402:598, 302:698] = True
     assert result.mask[inner].all() and not result.mask[(gray == 0) & ~_grown(gray > 0, 2)].any()
-    # the stand-in says 100 m everywhere; the returns, 120 m: a bias of the whole surface,
-    # of which anchoring takes SHRINK noise scales for the LIDAR's noise (sdcnet.anchoring)
-    # and corrects at most the rest, near the returns
-    corrected = (1 - SHRINK * MAD_TO_STD) * 20.0
+    # the stand-in says 100 m everywhere; the returns, 120 m: a bias of the whole surface
+    # far above any LIDAR's noise (at most 0.1 % of 120 m, sdcnet.anchoring), so anchoring
+    # corrects it and draws the depth to the returns next to them
     on_mask = result.depth[result.mask]
-    assert on_mask.min() >= 100.0 and on_mask.max() == pytest.approx(100.0 + corrected, abs=0.01)
+    at_returns = result.mask & (sparse > 0)
+    assert on_mask.min() >= 100.0 and on_mask.max() <= 120.0 + 1e-3
+    # (the crop seen 0.92x: a return's frame pixel is within a working pixel of its own)
+    assert np.mean(np.abs(result.depth[at_returns] - 120.0) < 0.01) > 0.95
     assert np.all(result.depth[~result.mask] == 0)
 
 
