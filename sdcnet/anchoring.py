@@ -11,9 +11,9 @@ module corrects the depth by its residuals at the returns (measured - predicted,
    off every residual, so that on a panel the model fits well the noise is not copied into
    the surface and the normals stay, while an error far above the noise (a depth edge) is
    corrected, less the noise. Most returns lie on surfaces the model fits, so the median
-   measures the noise; a bias of the whole surface is mostly taken for noise too
-   (``SHRINK`` x ``MAD_TO_STD``, three quarters of it, is left; the rest is corrected near
-   the returns). A LIDAR's noise is centimetres, not metres: the noise scale is at most
+   measures the noise; a bias of the whole surface up to the cap below is mostly taken for
+   noise too (``SHRINK`` x ``MAD_TO_STD``, three quarters of it, is left; the rest is
+   corrected near the returns). A LIDAR's noise is centimetres, not metres: the noise scale is at most
    ``MAX_NOISE_M`` or ``MAX_NOISE_OF_DEPTH`` of the returns' median depth, whichever is
    larger; above that the median measures the network's misfit (a few returns on a
    structure the surface smoothed over) and is corrected as one;
