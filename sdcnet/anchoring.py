@@ -13,10 +13,10 @@ module corrects the depth by its residuals at the returns (measured - predicted,
    corrected, less the noise. Most returns lie on surfaces the model fits, so the median
    measures the noise; a bias of the whole surface up to the cap below is mostly taken for
    noise too (``SHRINK`` x ``MAD_TO_STD``, three quarters of it, is left; the rest is
-   corrected near the returns). A LIDAR's noise is centimetres, not metres: the noise scale is at most
-   ``MAX_NOISE_M`` or ``MAX_NOISE_OF_DEPTH`` of the returns' median depth, whichever is
-   larger; above that the median measures the network's misfit (a few returns on a
-   structure the surface smoothed over) and is corrected as one;
+   corrected near the returns). A LIDAR's noise is centimetres, not metres: the noise scale
+   is at most ``MAX_NOISE_M`` or ``MAX_NOISE_OF_DEPTH`` of the returns' median depth,
+   whichever is larger; above that the median measures the network's misfit (a few returns
+   on a structure the surface smoothed over) and is corrected as one;
 2. the corrections are spread by a normalised Gaussian convolution (``sigma_px``
    from the returns' spacing): at a return the correction is mostly its own, between returns a
    weighted mean of the near ones, and it fades to nothing a few ``sigma_px`` away from any;
