@@ -71,8 +71,9 @@ SHRINK = 0.5
 #: Median absolute deviation -> standard deviation, for Gaussian noise.
 MAD_TO_STD = 1.4826
 #: The noise scale is at most this many metres or this share of the returns' median depth,
-#: whichever is larger: above the range noise of the LIDARs flown (a few cm, growing with the
-#: distance) with room to spare (docs/development.md, "Measurements").
+#: whichever is larger: about the range noise of the LIDARs flown (a few cm, growing with the
+#: distance); a noisier one keeps more of its noise next to the returns, as the fill keeps
+#: all of it (docs/development.md, "Measurements").
 MAX_NOISE_M = 0.06
 MAX_NOISE_OF_DEPTH = 1e-3
 
