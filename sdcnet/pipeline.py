@@ -646,6 +646,6 @@ def complete(
     depth = on_mask(resample_depth(surface, shape, footprint, box), mask, at)
     sigma = None
     if sigma_w is not None:
-        sigma_box = resample_depth(anchored_sigma(sigma_w, anchored), shape, math.inf, box)
+        sigma_box = resample_depth(anchored_sigma(sigma_w, anchored, mask_w), shape, math.inf, box)
         sigma = on_mask(sigma_box, mask, at)
     return Completion(depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma)

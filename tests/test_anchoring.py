@@ -17,10 +17,13 @@ from sdcnet.anchoring import (
     SIGMA_PER_DISAGREEMENT,
     SIGMA_PER_MISFIT,
     SIGMA_PER_NOISE,
+    SIGMA_SCALE,
     anchor_to_returns,
     anchored_sigma,
     error_ratio,
     nearest_return,
+    recombined_sigma,
+    shaped_by_grid,
     spreading_sigma_px,
 )
 
@@ -136,7 +139,7 @@ def test_the_sigma_shrinks_at_the_returns_and_grows_away_from_them():
     predicted = truth + np.where(sparse > 0, rng.normal(0, 0.05, truth.shape), 0)  # off by ~5 cm
     anchored = anchor_to_returns(predicted.astype(np.float32), truth > 0, sparse, 2.0, FOCAL_PX)
     network = np.full(truth.shape, 0.1, np.float32)
-    sigma = anchored_sigma(network, anchored)
+    sigma = recombined_sigma(network, anchored)
     ratio = error_ratio(network, anchored)
     assert ratio == pytest.approx(np.median(np.abs(anchored.residual)) / 0.1)
     floor = (SIGMA_PER_MISFIT * anchored.misfit) ** 2 + (SIGMA_PER_NOISE * anchored.noise_m) ** 2
@@ -163,7 +166,7 @@ def test_the_sigma_away_from_the_returns_is_the_same_seen_by_two_cameras():
         sparse = np.zeros_like(depth)
         sparse[: size // 2 : step, : size // 2 : step] = 50.0  # returns on the upper left only
         anchored = anchor_to_returns(depth, depth > 0, sparse, 2.0, focal_px)
-        sigmas.append(anchored_sigma(np.full_like(depth, 0.1), anchored))
+        sigmas.append(recombined_sigma(np.full_like(depth, 0.1), anchored))
     wide, narrow = sigmas
     assert narrow[40, 40] == pytest.approx(wide[80, 80], rel=0.05)
     assert wide[80, 80] > 5 * wide[4, 4]  # and it did grow away from the returns
@@ -178,7 +181,7 @@ def test_the_sigma_follows_how_wrong_the_network_was_at_the_returns():
     for error_m in (0.05, 0.15):  # the network's errors at the returns, then three times as large
         predicted = truth + error_m * offsets
         anchored = anchor_to_returns(predicted, truth > 0, sparse, sigma_px=2.0, focal_px=FOCAL_PX)
-        sigmas.append(anchored_sigma(network, anchored)[80, 80])
+        sigmas.append(anchored_sigma(network, anchored, truth > 0)[80, 80])
     # within 1 %: the metres per pixel of apart_m follow the depth, which moved by the error
     assert sigmas[1] == pytest.approx(3 * sigmas[0], rel=1e-2)
 
@@ -219,7 +222,7 @@ def test_without_returns_on_the_mask_the_sigma_is_the_networks():
     sparse[40:60, 40:60] = 0
     network = np.full(truth.shape, 0.1, np.float32)
     anchored = anchor_to_returns(truth, mask, sparse, 3.0, FOCAL_PX)
-    np.testing.assert_allclose(anchored_sigma(network, anchored), network, rtol=1e-6)
+    np.testing.assert_allclose(anchored_sigma(network, anchored, mask), network, rtol=1e-6)
 
 
 def test_the_sigma_covers_an_error_the_returns_measured():
@@ -231,7 +234,7 @@ def test_the_sigma_covers_an_error_the_returns_measured():
         predicted, np.ones(truth.shape, bool), sparse, sigma_px=2.0, focal_px=FOCAL_PX
     )
     network = np.full(truth.shape, 0.01, np.float32)
-    sigma = anchored_sigma(network, anchored)
+    sigma = recombined_sigma(network, anchored)
     assert anchored.misfit[36, 36] == pytest.approx(2.0, abs=0.05)  # its own return's misfit
     ratio = error_ratio(network, anchored)
     expected = math.sqrt(
@@ -263,7 +266,38 @@ def test_the_sigma_grows_across_a_depth_edge():
     sparse = np.zeros_like(depth)
     sparse[4:90:4, 4:56:4] = 50.0
     anchored = anchor_to_returns(depth, depth > 0, sparse, 2.0, FOCAL_PX)
-    sigma = anchored_sigma(np.full_like(depth, 0.05), anchored)
+    sigma = recombined_sigma(np.full_like(depth, 0.05), anchored)
     assert anchored.disagreement_m[48, 62] == pytest.approx(3.0, abs=1e-3)
     assert anchored.disagreement_m[48, 30] == 0.0
     assert sigma[48, 62] >= SIGMA_PER_DISAGREEMENT * 3.0 > 3 * sigma[48, 30]
+
+
+def test_the_sigma_is_shaped_by_the_working_pixels_to_a_return_and_the_outline():
+    """By hand: 0.1 m far inside the mask next to a return is ``SIGMA_SCALE`` x 0.1; 31 px from
+    the return, (1 + 31) ** 0.2 = 2 times that; on the outline (1 px from the nearest pixel off
+    the mask) 1 + 0.6 exp(-1 / 3) times, 4 px in 1 + 0.6 exp(-4 / 3); the grid's border is no
+    outline."""
+    sigma = np.full((40, 60), 0.1, np.float32)
+    apart_px = np.zeros_like(sigma)
+    apart_px[:, 30:] = 31.0
+    mask = np.zeros(sigma.shape, bool)
+    mask[:, :50] = True  # the outline between columns 49 and 50; rows run off the grid
+    shaped = shaped_by_grid(sigma, apart_px, mask)
+    assert shaped.dtype == np.float32
+    assert shaped[0, 10] == pytest.approx(SIGMA_SCALE * 0.1)  # on the border: no outline
+    assert shaped[20, 49] == pytest.approx(SIGMA_SCALE * 0.1 * 2.0 * (1 + 0.6 * math.exp(-1 / 3)))
+    assert shaped[20, 46] == pytest.approx(SIGMA_SCALE * 0.1 * 2.0 * (1 + 0.6 * math.exp(-4 / 3)))
+    assert shaped[20, 10] == pytest.approx(SIGMA_SCALE * 0.1, rel=1e-5)  # 40 px in
+
+
+def test_the_anchored_sigma_is_the_recombined_one_shaped_on_the_mask():
+    truth = tilted_plane()
+    sparse = returns_of(truth)
+    mask = truth > 0
+    mask[:, 70:] = False
+    anchored = anchor_to_returns(truth + 0.05, mask, sparse, sigma_px=2.0, focal_px=FOCAL_PX)
+    network = np.full(truth.shape, 0.1, np.float32)
+    expected = shaped_by_grid(recombined_sigma(network, anchored), anchored.apart_px, mask)
+    np.testing.assert_array_equal(anchored_sigma(network, anchored, mask), expected)
+    assert anchored.apart_px[4, 4] == 0.0
+    assert anchored.apart_px[8, 8] == pytest.approx(4 * 2**0.5, abs=0.1)  # 4 px down, 4 across
