@@ -310,14 +310,12 @@ def resample_depth(
     infinite ``footprint_m`` has no edges: bilinear everywhere, without looking for them (0.5
     against 2.4 ms for a 2048 x 2048 crop). The bilinear map is OpenCV's over the whole of
     ``shape`` (the window's pixels as they would be without it); the nearest pixels
-    (``nearest_sources``) are gathered within the window only."""
+    (``nearest_resampled``) are gathered within the window only."""
     window = Region(0, shape[0], 0, shape[1]) if window is None else window
     if depth.shape == shape:
         return depth[window.slices]
-    rows = nearest_sources(window.y0, window.y1, depth.shape[0], shape[0])
-    cols = nearest_sources(window.x0, window.x1, depth.shape[1], shape[1])
     if shape[0] * shape[1] < depth.shape[0] * depth.shape[1]:
-        return gathered(depth, rows, cols)
+        return nearest_resampled(depth, shape, window)
     linear = cv2.resize(depth, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
     linear = linear[window.slices]
     if not math.isfinite(footprint_m):
@@ -325,23 +323,25 @@ def resample_depth(
     kernel = np.ones((3, 3), np.uint8)
     spread = cv2.dilate(depth, kernel) - cv2.erode(depth, kernel)
     edge = (spread > DEPTH_EDGE_FOOTPRINTS * footprint_m).astype(np.uint8)
-    # gathered along each axis in turn and copied under the edge mask (indexing the edge
-    # pixels took up to 13 ms a frame)
-    cv2.copyTo(gathered(depth, rows, cols), gathered(edge, rows, cols), linear)
+    # the whole window gathered and copied under the edge mask (indexing the edge pixels
+    # alone took up to 13 ms a frame)
+    nearest = nearest_resampled(depth, shape, window)
+    cv2.copyTo(nearest, nearest_resampled(edge, shape, window), linear)
     return linear
 
 
-def nearest_sources(start: int, stop: int, source: int, target: int) -> np.ndarray:
-    """For pixels ``start:stop`` of an axis of ``target`` pixels resampled from one of
-    ``source``: the source pixel under each one's centre, (2 i + 1) source // (2 target), as
-    the returns are placed (``place_returns``) and the bilinear map samples. OpenCV's nearest
-    takes i source // target, up to a source pixel before it: on a crop the working grid
-    enlarged 2.5 times, half a frame pixel, 0.17 m on a panel seen edge-on."""
-    return (2 * np.arange(start, stop) + 1) * source // (2 * target)
-
-
-def gathered(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """``image``'s pixels at every (row, col) of ``rows`` x ``cols``: (len(rows), len(cols))."""
+def nearest_resampled(
+    image: np.ndarray, shape: tuple[int, int], window: Region | None = None
+) -> np.ndarray:
+    """``image`` (h, w) resampled to ``shape`` by nearest neighbour, or the ``window`` of it:
+    each pixel takes the source pixel under its centre, (2 i + 1) h // (2 H) along each axis
+    (gathered along one axis, then the other), as the returns are placed (``place_returns``)
+    and OpenCV's bilinear map samples. OpenCV's own nearest takes i h // H, up to a source
+    pixel before it: on a crop the working grid enlarged 2.5 times, half a frame pixel, 0.17 m
+    on a panel seen edge-on."""
+    window = Region(0, shape[0], 0, shape[1]) if window is None else window
+    rows = (2 * np.arange(window.y0, window.y1) + 1) * image.shape[0] // (2 * shape[0])
+    cols = (2 * np.arange(window.x0, window.x1) + 1) * image.shape[1] // (2 * shape[1])
     return np.take(np.take(image, rows, axis=0), cols, axis=1)
 
 

@@ -26,6 +26,7 @@ from sdcnet.training.checkpoint import (
 )
 from sdcnet.training.cli import main as train_main
 from sdcnet.training.cli import parser as train_parser
+from sdcnet.training.dataset import resample_truth
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
 from sdcnet.training.train import TrainConfig, config_from_preset
 from sdcnet.training.uncertainty import error_ratios, with_sigma
@@ -467,3 +468,12 @@ def test_calibrate_scales_sigma_to_cover_68_percent_of_the_errors(
     torch.testing.assert_close(p1, p0)
     torch.testing.assert_close(s1, factor * s0)
     assert state["train_config"] == load_checkpoint(run / "best.pt")[1]["train_config"]
+
+
+def test_the_truth_on_the_working_grid_is_the_depth_under_each_pixels_centre():
+    """The target is aligned with the inputs (the returns are placed at their pixel's centre):
+    4 columns to 2 take columns 1 and 3, 2 to 5 take 0, 0, 1, 1, 1 (OpenCV's nearest took
+    0 and 2, and 0, 0, 0, 1, 1: half a working pixel to the left)."""
+    depth = np.repeat(np.array([[11, 12, 13, 14]], np.float32), 2, axis=0)
+    np.testing.assert_array_equal(resample_truth(depth, (1, 2)), [[12, 14]])
+    np.testing.assert_array_equal(resample_truth(depth[:, :2], (2, 5))[0], [11, 11, 12, 12, 12])

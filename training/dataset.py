@@ -23,7 +23,6 @@ Earth, Sun-Moon and narrow-far frames -0.9 to -1.4 (docs/development.md, "Measur
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import torch
 from torch.utils.data import Dataset
@@ -32,6 +31,7 @@ from sdcnet.dataset_format import SampleStore
 from sdcnet.pipeline import (
     WORK_PIXELS,
     Region,
+    nearest_resampled,
     region_of_interest,
     resample_image,
     working_inputs,
@@ -43,11 +43,12 @@ BUDGET_JITTER = (0.5, 1.5)
 
 def resample_truth(depth: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Ground-truth depth (metres, 0 = background) on a grid of ``shape``: foreground where
-    the spacecraft covers at least half of a pixel, with the depth of the nearest sample."""
+    the spacecraft covers at least half of a pixel, with the depth of the sample under its
+    centre (as the pipeline pastes the answer back: ``nearest_resampled``)."""
     if depth.shape == shape:
         return depth
     cover = resample_image((depth > 0).astype(np.float32), shape)
-    nearest = cv2.resize(depth, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+    nearest = nearest_resampled(depth, shape)
     return np.where(cover >= 0.5, nearest, 0).astype(np.float32)
 
 
