@@ -129,7 +129,7 @@ SIGMA_OUTLINE_PX = 3.0
 #: ... and times this, so that about three quarters of the errors are within one sigma and
 #: nine tenths within two (the errors' tails are heavier than a Gaussian's: no one scale
 #: gives 68 and 95 %; docs/development.md, "Measurements").
-SIGMA_SCALE = 0.6
+SIGMA_SCALE = 0.59
 
 
 @dataclass(frozen=True)
