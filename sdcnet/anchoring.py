@@ -299,10 +299,9 @@ def shaped_by_grid(sigma: np.ndarray, apart_px: np.ndarray, mask: np.ndarray) ->
     the nearest return in the grid's pixels) ** ``SIGMA_APART_PX_POWER``, and times 1 +
     ``SIGMA_OUTLINE_GAIN`` x exp(-d / ``SIGMA_OUTLINE_PX``), d the distance in pixels to the
     nearest pixel off ``mask`` (h, w bool; 1 on the outline; the grid's border is not an
-    outline: a spacecraft overflowing the frame goes on beyond it): float32 metres. 1.6 ms on
-    a 512 x 512 grid, the distance transform 0.9 of it; a box blur of the mask in its place
-    (0.4 ms) ranked the pixels worse: leaving out the 10 % most uncertain cut narrow-far's
-    MAE by 29.7 % against 30.4 (docs/development.md, "Measurements")."""
+    outline: a spacecraft overflowing the frame goes on beyond it): float32 metres. The
+    distance transform is most of the cost; a box blur of the mask, a third of it, ranked the
+    pixels worse (docs/development.md, "Measurements")."""
     inside_px = cv2.distanceTransform(mask.view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
     outline = 1.0 + SIGMA_OUTLINE_GAIN * np.exp(-inside_px / SIGMA_OUTLINE_PX)
     shaped = SIGMA_SCALE * sigma * np.power(1.0 + apart_px, SIGMA_APART_PX_POWER) * outline
