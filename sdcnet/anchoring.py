@@ -114,7 +114,7 @@ MIN_ERROR_RATIO = 0.02
 #: them (flash and multi-beam frames of 1-6 returns on a boom, matched within 2 cm, were off
 #: by metres a little further; docs/development.md, "Measurements").
 MIN_RETURNS_FOR_RATIO = 20
-#: The ratio that leaves ``anchored_sigma`` the network's own sigma at a return.
+#: The ratio that leaves ``recombined_sigma`` the network's own sigma at a return.
 NETWORK_RATIO = 1.0 / SIGMA_AT_RETURN
 #: ``shaped_by_grid``: the sigma times (1 + the distance to the nearest return in working
 #: pixels) to this power (the metres of ``SIGMA_PER_APART_M`` alone left the pixels next to a
