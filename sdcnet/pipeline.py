@@ -397,7 +397,7 @@ def guided_probability(
 class Completion:
     """The answer on the whole frame, zero outside the spacecraft's crop (``grid.region``):
     depth in metres and sigma (0 off the mask), mask; the foreground probability on the crop,
-    the whole frame on demand; and on the working grid the surface, mask and image the
+    the whole frame on demand; and on the working grid the surface, mask, image and sigma the
     normals of the answer's points are taken from (``sdcnet.normals``)."""
 
     depth: np.ndarray  # (H, W) float32 metres, 0 off the mask
@@ -408,6 +408,7 @@ class Completion:
     working_mask: np.ndarray  # (h', w') bool: the mask on the working grid
     working_gray: np.ndarray  # (h', w') float32 in [0, 1]: the image the network saw
     sigma: np.ndarray | None = None  # (H, W) float32 metres, 0 off the mask; None: model has none
+    working_sigma: np.ndarray | None = None  # (h', w') float32 metres: what sigma resamples
 
     @property
     def region(self) -> Region:
@@ -657,6 +658,6 @@ def complete(
     depth = on_mask(resample_depth(surface, shape, footprint, box), mask, at)
     sigma = None
     if sigma_w is not None:
-        sigma_box = resample_depth(anchored_sigma(sigma_w, anchored, mask_w), shape, math.inf, box)
-        sigma = on_mask(sigma_box, mask, at)
-    return Completion(depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma)
+        sigma_w = anchored_sigma(sigma_w, anchored, mask_w)
+        sigma = on_mask(resample_depth(sigma_w, shape, math.inf, box), mask, at)
+    return Completion(depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma, sigma_w)

@@ -42,15 +42,19 @@ def working_plane(normal: np.ndarray, offset_m: float, grid: WorkingGrid) -> np.
 
 
 def completion_of(
-    depth_w: np.ndarray, mask_w: np.ndarray, grid: WorkingGrid, gray_w: np.ndarray | None = None
+    depth_w: np.ndarray,
+    mask_w: np.ndarray,
+    grid: WorkingGrid,
+    gray_w: np.ndarray | None = None,
+    sigma_w: np.ndarray | None = None,
 ) -> Completion:
     """A completion whose frame mask is the whole region (what normals_at reads of it), seen
-    in ``gray_w`` (uniformly lit without it)."""
+    in ``gray_w`` (uniformly lit without it), its depth as uncertain as ``sigma_w`` says."""
     mask = np.zeros((K.height, K.width), bool)
     mask[grid.region.slices] = True
     empty = np.zeros(mask.shape, np.float32)
     gray_w = np.full(grid.shape, 0.5, np.float32) if gray_w is None else gray_w
-    return Completion(empty, mask, empty, grid, depth_w, mask_w, gray_w)
+    return Completion(empty, mask, empty, grid, depth_w, mask_w, gray_w, working_sigma=sigma_w)
 
 
 def angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -158,3 +162,28 @@ def test_the_image_guides_the_normals_smoothed_within_a_facet_and_at_a_fold():
     assert guided[within].mean() < 0.7 * raw[within].mean()
     at_fold = np.s_[20:-20, fold - 2 : fold + 2]
     assert raw[at_fold].max() > 25 and guided[at_fold].max() < 12
+
+
+def test_the_fits_weigh_each_pixel_by_the_inverse_of_its_depths_variance():
+    """A plane whose depth ripples by 5 cm in a band of columns, where sigma says it is ten
+    times less sure: weighed by sigma, the band's normals come from the sure pixels around it
+    and are nearer the plane's than unweighed; a sigma alike everywhere changes nothing."""
+    grid = WorkingGrid(Region(0, K.height, 0, K.width), (K.height, K.width))
+    normal = unit(0.3, 0.2, -1.0)
+    rows, cols = np.mgrid[: grid.shape[0], : grid.shape[1]]
+    band = (cols >= 140) & (cols < 160)
+    ripple = np.where(band, 0.05 * np.sin(cols * 1.3) * np.cos(rows / 2.0), 0.0)
+    depth_w = (working_plane(normal, -40.0, grid) + ripple).astype(np.float32)
+    mask_w = np.ones(grid.shape, bool)
+    sigma_w = np.where(band, 0.1, 0.01).astype(np.float32)
+    unweighed = angles_deg(normal_map(completion_of(depth_w, mask_w, grid), K), normal)
+    weighed = normal_map(completion_of(depth_w, mask_w, grid, sigma_w=sigma_w), K)
+    inner = np.s_[20:-20, 140:160]
+    assert unweighed[inner].mean() > 6
+    assert angles_deg(weighed, normal)[inner].mean() < 0.5 * unweighed[inner].mean()
+    alike = np.full(grid.shape, 0.37, np.float32)
+    np.testing.assert_allclose(
+        normal_map(completion_of(depth_w, mask_w, grid, sigma_w=alike), K),
+        normal_map(completion_of(depth_w, mask_w, grid), K),
+        atol=1e-5,
+    )
