@@ -656,8 +656,8 @@ def complete(
     mask = np.zeros(gray.shape, bool)
     mask[at.slices] = mask_crop[box.slices]
     depth = on_mask(resample_depth(surface, shape, footprint, box), mask, at)
-    sigma = None
+    sigma = served_w = None
     if sigma_w is not None:
-        sigma_w = anchored_sigma(sigma_w, anchored, mask_w)
-        sigma = on_mask(resample_depth(sigma_w, shape, math.inf, box), mask, at)
-    return Completion(depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma, sigma_w)
+        served_w = anchored_sigma(sigma_w, anchored, mask_w)
+        sigma = on_mask(resample_depth(served_w, shape, math.inf, box), mask, at)
+    return Completion(depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma, served_w)
