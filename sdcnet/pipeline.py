@@ -11,7 +11,9 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    camera, the range and the size of the spacecraft in the frame (``working_grid``): a large
    crop is shrunk, a small one enlarged up to ``MAX_UPSAMPLE`` times, so every frame costs the
    network about the same and the network always sees the spacecraft a few hundred pixels
-   across;
+   across; fewer (down to half) where the frame's own work at its resolution, which grows
+   with its crop and its points, would take the whole frame past its budget
+   (``frame_work_pixels``);
 3. **infer**: the model, told the focal length in working pixels so that it can put its depths
    in units of the pixel footprint;
 4. **anchor** the depth to the returns it should agree with (``sdcnet.anchoring``), and
@@ -48,6 +50,22 @@ ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
 #: Pixels the network sees per frame, padding included: set by the 100 ms budget of one frame
 #: on two cores (docs/benchmarks.md), and carried by each model file (``work_pixels``).
 WORK_PIXELS = 512 * 512
+#: A frame's work at its own resolution, each in the time one working pixel takes (the whole
+#: working grid's work: the network, anchoring, the normals' fits), fitted over the robustness
+#: suite's frames on two cores (docs/development.md, "Measurements"): a pixel of the crop
+#: (resampling it, the guided paste-back, the components that vouch for its mask) ...
+CROP_PIXEL_COST = 0.03
+#: ... and a pixel of the returns' convex hull, about 0.6 of which the answer's points fill
+#: (each point's depth, sigma, back-projection and normal).
+HULL_PIXEL_COST = 0.1
+#: The whole frame's budget, in working pixels' time, as a multiple of the model's
+#: ``work_pixels``: a frame whose crop and hull cost more than the rest of it gets fewer
+#: working pixels (``frame_work_pixels``), so that a 2048 x 2048 crop holding a million points
+#: costs about what a paper frame does ...
+FRAME_BUDGET = 1.4
+#: ... but never fewer than this share of ``work_pixels`` (the least the shipped network was
+#: trained at: ``training.dataset.BUDGET_JITTER``).
+MIN_WORK_SHARE = 0.5
 #: Most a small crop is enlarged: more would spend the budget on interpolated pixels.
 MAX_UPSAMPLE = 4.0
 #: Margin around the LIDAR returns' bounding box: this many return spacings (a part of the
@@ -142,16 +160,17 @@ def return_pixels(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def region_of_interest(gray: np.ndarray, sparse: np.ndarray) -> Region:
     """Region holding the spacecraft of a frame (gray (H, W) of any dtype, sparse (H, W)
     metres): ``spacecraft_region`` of its LIDAR returns."""
-    return spacecraft_region(*return_pixels(sparse), gray)[0]
+    rows, cols = return_pixels(sparse)
+    return spacecraft_region(rows, cols, gray, return_spacing(rows, cols))[0]
 
 
 def spacecraft_region(
-    rows: np.ndarray, cols: np.ndarray, gray: np.ndarray
+    rows: np.ndarray, cols: np.ndarray, gray: np.ndarray, spacing: float | None
 ) -> tuple[Region, FieldCuts | None]:
     """Region holding the spacecraft whose returns lie at pixel ``rows``, ``cols`` of the frame
-    ``gray``: ``region_around`` them, grown ``past_field_edges`` where the LIDAR's field cut
-    the spacecraft; and those cuts (None where there is none)."""
-    spacing = return_spacing(rows, cols)
+    ``gray``, ``spacing`` pixels apart (``return_spacing``): ``region_around`` them, grown
+    ``past_field_edges`` where the LIDAR's field cut the spacecraft; and those cuts (None where
+    there is none)."""
     region = region_around(rows, cols, gray.shape, spacing)
     cuts = None if spacing is None else field_cuts(rows, cols, gray, spacing)
     return (region, None) if cuts is None else (past_field_edges(region, cuts, gray.shape), cuts)
@@ -204,6 +223,20 @@ def _grow(lo: int, hi: int, length: int, size: int) -> tuple[int, int]:
     length = min(max(length, hi - lo), size)
     lo = min(max(lo - (length - (hi - lo)) // 2, 0), size - length)
     return lo, lo + length
+
+
+def frame_work_pixels(work_pixels: int, crop_pixels: int, hull_pixels: float) -> int:
+    """The working pixels one frame gets: what the frame's budget (``FRAME_BUDGET`` times
+    ``work_pixels``, in working pixels' time) leaves beside its work at its own resolution,
+    ``CROP_PIXEL_COST`` for each of its crop's ``crop_pixels`` and ``HULL_PIXEL_COST`` for each
+    of the ``hull_pixels`` within its returns' convex hull (where its points will be), between
+    ``MIN_WORK_SHARE`` of ``work_pixels`` and all of them. The network's pixels are most of a
+    frame's cost, but not all of it: without this, a 2048 x 2048 crop holding a million points
+    took twice a paper frame's milliseconds at the same working pixels."""
+    own = CROP_PIXEL_COST * crop_pixels + HULL_PIXEL_COST * hull_pixels
+    return int(
+        min(work_pixels, max(MIN_WORK_SHARE * work_pixels, FRAME_BUDGET * work_pixels - own))
+    )
 
 
 def working_grid(
@@ -557,17 +590,22 @@ def working_inputs(
     region: Region | None = None,
 ) -> WorkingInputs:
     """Crop a frame to the spacecraft's region (or ``region``) and resample it to its working
-    grid. gray uint8/uint16 (H, W); sparse float32 (H, W) metres, 0 = no return;
-    ``focal_px`` the camera's focal length in the frame's pixels (fx)."""
+    grid, of at most ``work_pixels`` pixels, fewer where the frame's own work at its resolution
+    would take it past its budget (``frame_work_pixels``). gray uint8/uint16 (H, W); sparse
+    float32 (H, W) metres, 0 = no return; ``focal_px`` the camera's focal length in the
+    frame's pixels (fx)."""
     if gray.shape != sparse.shape:
         raise ValueError(f"gray {gray.shape} and sparse {sparse.shape} differ in size")
     if not (math.isfinite(focal_px) and focal_px > 0):
         raise ValueError(f"focal_px must be a positive number of pixels, got {focal_px}")
     rows, cols = return_pixels(sparse)
+    spacing = return_spacing(rows, cols)
     cuts = None
     if region is None:
-        region, cuts = spacecraft_region(rows, cols, gray)
-    grid = working_grid(region, gray.shape, stride, work_pixels)
+        region, cuts = spacecraft_region(rows, cols, gray, spacing)
+    hull_pixels = 0.0 if spacing is None else spacing * spacing * len(rows)
+    budget = frame_work_pixels(work_pixels, region.shape[0] * region.shape[1], hull_pixels)
+    grid = working_grid(region, gray.shape, stride, budget)
     g = grid.region
     inside = (rows >= g.y0) & (rows < g.y1) & (cols >= g.x0) & (cols < g.x1)
     rows, cols = rows[inside], cols[inside]

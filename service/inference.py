@@ -11,6 +11,7 @@ phase is timed. ``complete_frame`` is the one path both protocols share.
 from __future__ import annotations
 
 import functools
+import math
 import threading
 import time
 from collections.abc import Iterator
@@ -249,20 +250,22 @@ def complete_frame(
     )
 
 
-#: Pixels between the returns of the warm-up frame (``warm_up``): a grid across the whole
-#: frame, so that its crop is the frame and its working grid the model's budget.
+#: Pixels between the returns of the warm-up frames (``warm_up``): a grid across each frame.
 WARM_UP_RETURN_STEP = 16
 
 
 def warm_up(model: Runtime, side: int) -> None:
-    """Complete one synthetic frame of ``side`` x ``side`` pixels (the largest the service
-    accepts) whose returns cover it: onnxruntime's arena grows to the working budget and the
-    allocator's heap to the full-resolution maps before the first request, not during it
-    (docs/development.md, "Measurements")."""
-    gray = np.zeros((side, side), np.uint8)
-    sparse = np.zeros((side, side), np.float32)
-    sparse[::WARM_UP_RETURN_STEP, ::WARM_UP_RETURN_STEP] = 100.0
-    complete(model.run, gray, sparse, 1000.0, model.stride, model.info.work_pixels)
+    """Complete two synthetic frames whose returns cover them before the first request, not
+    during it (docs/development.md, "Measurements"): one of ``side`` x ``side`` pixels (the
+    largest the service accepts), so that the allocator's heap grows to the full-resolution
+    maps, and one as large as the model's working budget, so that onnxruntime's arena grows
+    to it (a frame as large as the first gets fewer working pixels:
+    ``sdcnet.pipeline.frame_work_pixels``)."""
+    for frame_side in (side, math.isqrt(model.info.work_pixels)):
+        gray = np.zeros((frame_side, frame_side), np.uint8)
+        sparse = np.zeros((frame_side, frame_side), np.float32)
+        sparse[::WARM_UP_RETURN_STEP, ::WARM_UP_RETURN_STEP] = 100.0
+        complete(model.run, gray, sparse, 1000.0, model.stride, model.info.work_pixels)
 
 
 @dataclass(frozen=True)

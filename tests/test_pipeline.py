@@ -7,11 +7,13 @@ import pytest
 from sdcnet.pipeline import (
     FIELD_EDGE_GROWTH,
     MAX_UPSAMPLE,
+    MIN_WORK_SHARE,
     RETURN_REACH_PX,
     WORK_PIXELS,
     Region,
     complete,
     drop_specks,
+    frame_work_pixels,
     guided_probability,
     mask_box,
     region_around,
@@ -145,11 +147,24 @@ def test_the_budget_caps_the_network_input_of_a_2048_px_full_frame():
     result = complete(bright_model(calls), gray, sparse, 2000.0, stride=64)
     ((shape, returns, focal),) = calls
     padded = [-(-n // 64) * 64 for n in shape[2:]]
-    assert padded[0] * padded[1] <= WORK_PIXELS
+    # returns across the whole frame: its work at full resolution leaves the network the least
+    seen = padded[0] * padded[1]
+    assert 0.7 * MIN_WORK_SHARE * WORK_PIXELS <= seen <= MIN_WORK_SHARE * WORK_PIXELS
     assert result.grid.region == Region(0, 2048, 0, 2048) and result.mask.shape == (2048, 2048)
     assert result.mask.all(), "a frame the spacecraft fills, answered at full resolution"
     assert focal == pytest.approx(2000.0 * shape[3] / 2048)
     assert returns <= np.count_nonzero(sparse)
+
+
+def test_a_frame_gets_fewer_working_pixels_as_its_own_work_grows_down_to_a_floor():
+    """The network's pixels and the frame's own work at its resolution share one budget."""
+    paper_frame = frame_work_pixels(WORK_PIXELS, crop_pixels=700 * 700, hull_pixels=300 * 300)
+    assert paper_frame == WORK_PIXELS
+    large = [frame_work_pixels(WORK_PIXELS, 2048 * 2048, side * side) for side in (700, 900)]
+    assert WORK_PIXELS > large[0] > large[1] > MIN_WORK_SHARE * WORK_PIXELS
+    whole = frame_work_pixels(WORK_PIXELS, 2048 * 2048, 2048 * 2048)
+    assert whole == int(MIN_WORK_SHARE * WORK_PIXELS)
+    assert frame_work_pixels(2 * WORK_PIXELS, 700 * 700, 300 * 300) == 2 * WORK_PIXELS
 
 
 def test_a_small_crop_is_enlarged_up_to_the_limit_and_answered_at_its_own_size():

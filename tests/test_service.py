@@ -96,9 +96,10 @@ def client(request, model_path, engine):
         yield http
 
 
-def test_the_warm_up_runs_the_network_on_its_budget_for_a_whole_frame(engine):
+def test_the_warm_up_runs_the_network_on_its_budget_and_completes_a_whole_frame(engine):
     """What the start-up warms: a frame of the largest accepted side whose crop is the whole
-    frame, on a working grid at the model's budget (the first request's worst case)."""
+    frame (the full-resolution maps), and the network on a working grid at the model's budget
+    (the first request's worst cases)."""
     shapes, focals = [], []
 
     class Recording:
@@ -110,9 +111,9 @@ def test_the_warm_up_runs_the_network_on_its_budget_for_a_whole_frame(engine):
             return engine.model.run(gray, sparse, focal_px)
 
     warm_up(Recording(), 2048)
-    ((_, _, height, width),) = shapes
-    assert 0.8 * WORK_PIXELS <= height * width <= WORK_PIXELS
+    (_, _, _, width), (_, _, budget_height, budget_width) = shapes
     assert focals[0] == pytest.approx(1000.0 * width / 2048)  # the crop is the whole frame
+    assert 0.8 * WORK_PIXELS <= budget_height * budget_width <= WORK_PIXELS
 
 
 def frame():

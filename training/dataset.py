@@ -37,7 +37,9 @@ from sdcnet.pipeline import (
     working_inputs,
 )
 
-#: Range of the working-pixel budget a training item is drawn at, as a factor of the pipeline's.
+#: Range of the working-pixel budget a training item is drawn at, as a factor of the pipeline's
+#: (a frame whose own work is large gets fewer, as in service:
+#: ``sdcnet.pipeline.frame_work_pixels``).
 BUDGET_JITTER = (0.5, 1.5)
 
 
