@@ -59,9 +59,9 @@ CROP_PIXEL_COST = 0.025
 #: (each point's depth, sigma, back-projection and normal).
 HULL_PIXEL_COST = 0.08
 #: The whole frame's budget, in working pixels' time, as a multiple of the model's
-#: ``work_pixels``: a frame whose crop and hull cost more than the rest of it gets fewer
-#: working pixels (``frame_work_pixels``), so that a 2048 x 2048 crop holding a million points
-#: costs about what a paper frame does ...
+#: ``work_pixels`` (about 80 ms on two cores by the fit above): a frame whose crop and hull
+#: cost more than the rest of it gets fewer working pixels (``frame_work_pixels``), so that
+#: frames of large crops and many points cost near what the others do ...
 FRAME_BUDGET = 1.4
 #: ... but never fewer than this share of ``work_pixels`` (the least the shipped network was
 #: trained at: ``training.dataset.BUDGET_JITTER``).
