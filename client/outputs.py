@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from sdcnet.camera import Intrinsics
+from sdcnet.caveats import CAVEATS
 from sdcnet.client.api import Completion
 from sdcnet.pointcloud import point_pixels, write_ply
 from sdcnet.visualize import (
@@ -140,6 +141,7 @@ def summary(result: Completion, url: str, written: list[Path]) -> str:
         f"  points    {len(result.points):,} ({meta.get('outliers_removed', 0)} outliers, "
         f"{meta.get('uncertain_removed', 0)} above max_sigma removed)",
         f"  latency   {result.latency_s * 1e3:.1f} ms round trip; server {server}",
+        *(f"  caveat    {code}: {CAVEATS.get(code, '')}" for code in meta.get("caveats", [])),
         "  wrote     " + "  ".join(str(p) for p in written),
     ]
     return "\n".join(lines)

@@ -116,6 +116,7 @@ def summary(document: dict) -> dict[str, Any]:
     meta["model_version"] = document["model_version"]
     meta["intrinsics"] = {k: p[k] for k in PINHOLE_FIELDS}
     meta["timings"] = {k: p[k] for k in _TIMINGS}
+    meta["caveats"] = [code for code in str(p.get("caveats", "")).split(",") if code]
     return meta
 
 

@@ -430,8 +430,9 @@ def guided_probability(
 class Completion:
     """The answer on the whole frame, zero outside the spacecraft's crop (``grid.region``):
     depth in metres and sigma (0 off the mask), mask; the foreground probability on the crop,
-    the whole frame on demand; and on the working grid the surface, mask, image and sigma the
-    normals of the answer's points are taken from (``sdcnet.normals``)."""
+    the whole frame on demand; on the working grid the surface, mask, image and sigma the
+    normals of the answer's points are taken from (``sdcnet.normals``); and where the LIDAR's
+    field cut the spacecraft, if it did (``sdcnet.caveats``)."""
 
     depth: np.ndarray  # (H, W) float32 metres, 0 off the mask
     mask: np.ndarray  # (H, W) bool
@@ -442,6 +443,7 @@ class Completion:
     working_gray: np.ndarray  # (h', w') float32 in [0, 1]: the image the network saw
     sigma: np.ndarray | None = None  # (H, W) float32 metres, 0 off the mask; None: model has none
     working_sigma: np.ndarray | None = None  # (h', w') float32 metres: what sigma resamples
+    cuts: FieldCuts | None = None  # where the LIDAR's field cut the spacecraft (frame pixels)
 
     @property
     def region(self) -> Region:
@@ -698,4 +700,6 @@ def complete(
     if sigma_w is not None:
         served_w = anchored_sigma(sigma_w, anchored, mask_w)
         sigma = on_mask(resample_depth(served_w, shape, math.inf, box), mask, at)
-    return Completion(depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma, served_w)
+    return Completion(
+        depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma, served_w, inputs.cuts
+    )

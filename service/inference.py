@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
+from sdcnet.caveats import frame_caveats
 from sdcnet.compact import mask_window
 from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import Completion, Region, complete
@@ -197,6 +198,7 @@ class Completed:
             point_count=len(self.points),
             outliers_removed=self.outliers_removed,
             uncertain_removed=self.uncertain_removed,
+            caveats=frame_caveats(self.completion, self.returns),
         )
 
     def summary(self, model: Runtime, timer: PhaseTimer) -> CompletionSummary:

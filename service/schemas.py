@@ -7,6 +7,8 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from sdcnet.caveats import CAVEATS
+
 
 class ResponseFormat(StrEnum):
     """How ``POST /complete`` answers."""
@@ -109,6 +111,11 @@ class FrameSummary(BaseModel):
     uncertain_removed: int = Field(
         description="points left out for a sigma above max_sigma (POST /pose: or above the "
         "frame's own limit)"
+    )
+    caveats: list[str] = Field(
+        description="what the mask may not hold, by code (empty: nothing known; in the Open "
+        "Inference Protocol's parameters, the codes joined by commas): "
+        + "; ".join(f"{code}: {meaning}" for code, meaning in CAVEATS.items())
     )
 
 

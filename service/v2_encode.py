@@ -70,7 +70,8 @@ def output_tensor(output: AnyOutput, done: Completed) -> Tensor:
 
 def summary_parameters(summary: CompletionSummary) -> dict[str, Scalar]:
     """The summary of ``POST /complete`` as flat protocol parameters (scalars only)."""
-    flat = summary.model_dump(exclude={"intrinsics", "timings", "model_version"})
+    flat = summary.model_dump(exclude={"intrinsics", "timings", "model_version", "caveats"})
+    flat["caveats"] = ",".join(summary.caveats)
     return {**flat, **summary.intrinsics.model_dump(), **summary.timings.model_dump()}
 
 

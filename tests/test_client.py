@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from sdcnet.camera import GivenIntrinsics
+from sdcnet.caveats import CAVEATS, FEW_RETURNS
 from sdcnet.client.api import Client, ServiceError
 from sdcnet.client.batch import find_pairs
 from sdcnet.client.cli import frame_kwargs, main, parser
@@ -78,6 +79,17 @@ def service_ply(url: str, gray: bytes, sparse: bytes, **fields) -> bytes:
     ).content
 
 
+def test_infer_prints_the_answers_caveats_with_their_meaning(url, frame_files, tmp_path, capsys):
+    gray, sparse = frame_files
+    few = np.load(sparse)
+    rows, cols = np.nonzero(few)
+    few[rows[FEW_RETURNS // 2 :], cols[FEW_RETURNS // 2 :]] = 0  # 10 returns left
+    np.save(tmp_path / "few.npy", few)
+    argv = ["infer", str(gray), str(tmp_path / "few.npy"), "--url", url, "--out", str(tmp_path)]
+    assert main(argv) == 0
+    assert f"caveat    few_returns: {CAVEATS['few_returns']}" in capsys.readouterr().out
+
+
 def test_infer_writes_five_files_that_match_the_service(url, frame_files, tmp_path, capsys):
     gray, sparse = frame_files
     out = tmp_path / "out"
@@ -112,6 +124,7 @@ def test_infer_writes_five_files_that_match_the_service(url, frame_files, tmp_pa
     median = np.median(expected["sigma"][expected["mask"].astype(bool)])
     assert f"sigma     median {median:.3f} m on the mask" in printed
     assert len(printed.splitlines()) <= 24  # one screen
+    assert "caveat" not in printed  # enough returns, and the field holds the spacecraft
 
     # --max-sigma: the cloud without the points above it, the arrays whole
     limit = float(median)  # about half the points are above it

@@ -30,6 +30,7 @@ from fastapi.testclient import TestClient
 
 from sdcnet.calibration import CameraCalibration, Undistorter
 from sdcnet.camera import Intrinsics
+from sdcnet.caveats import FEW_RETURNS
 from sdcnet.client.api import Client
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import WORK_PIXELS, complete
@@ -329,6 +330,22 @@ def test_max_sigma_leaves_exactly_the_points_above_it_out_of_every_answer(client
     np.testing.assert_array_equal(cloud.properties["sigma"], sigma[trusted])
     assert cloud.properties["sigma"].max() <= max_sigma
     assert f"uncertain_removed {as_json['uncertain_removed']}" in cloud.comments
+
+
+def test_every_answer_says_when_its_mask_rests_on_few_returns(client):
+    """The caveats (``sdcnet.caveats``) in the JSON answer, the npz's meta.json and the PLY's
+    header: none for the test frame, ``few_returns`` when most of its returns are left out."""
+    assert post(client, frame_files()).json()["caveats"] == []
+    sparse = frame().sparse.copy()
+    rows, cols = np.nonzero(sparse)
+    sparse[rows[FEW_RETURNS // 2 :], cols[FEW_RETURNS // 2 :]] = 0
+    files = frame_files(sparse=npy_bytes(sparse))
+    assert post(client, files).json()["caveats"] == ["few_returns"]
+    npz = post(client, frame_files(sparse=npy_bytes(sparse)), format="npz")
+    with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
+        assert json.loads(archive["meta.json"])["caveats"] == ["few_returns"]
+    cloud = read_ply(post(client, frame_files(sparse=npy_bytes(sparse)), format="ply").content)
+    assert "caveats few_returns" in cloud.comments
 
 
 @pytest.mark.parametrize(

@@ -17,6 +17,7 @@ from tritonclient.utils import InferenceServerException
 
 from sdcnet.camera import Intrinsics
 from sdcnet.client.api import Client
+from sdcnet.client.protocol import summary
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
 from sdcnet.formats.v2 import HEADER_LENGTH
 from sdcnet.normals import normals_at
@@ -162,6 +163,19 @@ def test_max_sigma_as_a_request_parameter_leaves_exactly_the_uncertain_points_ou
     np.testing.assert_array_equal(answer["points"], back_project(depth, trusted, K))
     assert parameters["uncertain_removed"] == np.count_nonzero(valid & (sigma > max_sigma)) > 100
     assert np.count_nonzero(trusted) > 100
+
+
+def test_the_caveats_travel_as_one_parameter_and_come_back_as_a_list(url):
+    """The Open Inference Protocol's parameters are scalars: the codes joined by commas,
+    which the client's summary splits back into ``POST /complete``'s list."""
+    s = generated(256)
+    returns = returns_from_dense(s.sparse)
+    _, result = triton_infer(url, {"gray": s.gray, "returns": returns}, True)
+    assert result.get_response()["parameters"]["caveats"] == ""
+    _, result = triton_infer(url, {"gray": s.gray, "returns": returns[:5]}, True)
+    document = result.get_response()
+    assert document["parameters"]["caveats"] == "few_returns"
+    assert summary(document)["caveats"] == ["few_returns"]
 
 
 def test_the_service_lets_idle_onnxruntime_threads_sleep(model_path):
