@@ -189,8 +189,10 @@ class ModelMetadata(BaseModel):
     threads: int = Field(description="onnxruntime intra-op threads")
     stride: int = Field(description="the network's input sides are padded to this many pixels")
     work_pixels: int = Field(
-        description="pixels the network sees per frame, whatever the camera: the spacecraft's "
-        "crop is resampled to about this many (the fixed cost of a frame)"
+        description="pixels the network sees per frame at most, whatever the camera: the "
+        "spacecraft's crop is resampled to about this many, fewer (down to half) where the "
+        "frame's own work at its resolution is large (a large crop, many points), so that "
+        "every frame keeps to one cost"
     )
     intrinsics: CameraIntrinsics = Field(
         description="the paper's camera at 1024 x 1024: requests' default when no camera is "
