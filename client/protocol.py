@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from sdcnet.camera import PINHOLE_FIELDS
+from sdcnet.caveats import from_text
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
 from sdcnet.formats.v2 import DTYPES, HEADER_LENGTH
 
@@ -116,7 +117,7 @@ def summary(document: dict) -> dict[str, Any]:
     meta["model_version"] = document["model_version"]
     meta["intrinsics"] = {k: p[k] for k in PINHOLE_FIELDS}
     meta["timings"] = {k: p[k] for k in _TIMINGS}
-    meta["caveats"] = [code for code in str(p.get("caveats", "")).split(",") if code]
+    meta["caveats"] = from_text(str(p.get("caveats", "")))
     return meta
 
 

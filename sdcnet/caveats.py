@@ -35,3 +35,14 @@ def frame_caveats(completion: Completion, returns: int) -> list[str]:
         "lidar_field_cut": completion.cuts is not None,
     }
     return [code for code in CAVEATS if holds[code]]
+
+
+def as_text(codes: list[str]) -> str:
+    """``codes`` as one text, where only a scalar travels (the Open Inference Protocol's
+    parameters, a PLY header's comment): joined by commas, empty for none."""
+    return ",".join(codes)
+
+
+def from_text(text: str) -> list[str]:
+    """The codes of an ``as_text``."""
+    return [code for code in text.split(",") if code]

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from sdcnet.camera import Intrinsics
+from sdcnet.caveats import as_text
 from sdcnet.npyio import ZIP_EPOCH
 from sdcnet.pointcloud import ply_header, ply_vertices
 from sdcnet.service.schemas import CompletionSummary, FrameSummary, ResponseFormat
@@ -152,7 +153,7 @@ def ply_comments(frame: FrameSummary, K: Intrinsics) -> list[str]:
         f"image {K.width} x {K.height}, {K.describe()}",
         f"outliers_removed {frame.outliers_removed}",
         f"uncertain_removed {frame.uncertain_removed}",
-        f"caveats {','.join(frame.caveats) or 'none'}",
+        f"caveats {as_text(frame.caveats) or 'none'}",
     ]
 
 

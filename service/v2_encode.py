@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from sdcnet.caveats import as_text
 from sdcnet.compact import crop, fp16_residuals, pack_mask
 from sdcnet.formats.v2 import DTYPES
 from sdcnet.service.encode import array_slices
@@ -71,7 +72,7 @@ def output_tensor(output: AnyOutput, done: Completed) -> Tensor:
 def summary_parameters(summary: CompletionSummary) -> dict[str, Scalar]:
     """The summary of ``POST /complete`` as flat protocol parameters (scalars only)."""
     flat = summary.model_dump(exclude={"intrinsics", "timings", "model_version", "caveats"})
-    flat["caveats"] = ",".join(summary.caveats)
+    flat["caveats"] = as_text(summary.caveats)
     return {**flat, **summary.intrinsics.model_dump(), **summary.timings.model_dump()}
 
 
