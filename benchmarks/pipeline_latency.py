@@ -6,7 +6,8 @@
 What the service does between decoding and encoding a frame, on the robustness suite's frames
 (``sdc-eval robustness`` renders them: the paper's camera and others from 5 to 60 deg, 512 to
 2048 px, docking to 300 m): crop to the LIDAR-bounded region, resample to the working grid,
-onnxruntime, paste back, back-project the cloud, with malloc set as the service sets it
+onnxruntime, paste back, back-project the cloud (at most ``MAX_POINTS``, as the service's
+default), with malloc set as the service sets it
 (``sdcnet.allocator``). Per condition and over all frames: median,
 p95 and max in milliseconds, p95 / median, against the 100 ms a 10 Hz LIDAR leaves. With
 ``--previous COMMIT``, the same frames through the previous shipped model and its own pipeline
@@ -32,7 +33,7 @@ from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
 from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import complete
-from sdcnet.pointcloud import back_project
+from sdcnet.pointcloud import MAX_POINTS, back_project, cloud_stride
 from sdcnet.runtime.onnx import OnnxModel
 
 BUDGET_MS = 100.0
@@ -55,8 +56,10 @@ def time_frames(
         result = complete(
             model.run, sample.gray, sample.sparse, K.fx, info.stride, info.work_pixels
         )
-        back_project(result.depth, result.mask, K)
-        cloud_normals(result, result.mask & (result.depth > 0), K)
+        valid = result.mask & (result.depth > 0)
+        stride = cloud_stride(valid, MAX_POINTS)  # the service's cloud at its default
+        back_project(result.depth, valid, K, stride=stride)
+        cloud_normals(result, valid, K, stride=stride)
 
     for model in models.values():
         for sample in samples[:2]:

@@ -89,9 +89,16 @@ def pixels_of_points(result: Completion) -> tuple[np.ndarray, np.ndarray]:
 
 def normal_image(result: Completion, pixels: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """float32 (H, W, 3): each point's normal at its pixel (``pixels``), 0 where there is no
-    point."""
+    point; a cloud of every k-th pixel (``cloud_stride``) fills each k x k block from its
+    point, for the eye."""
     image = np.zeros((*result.depth.shape, 3), np.float32)
     image[pixels] = result.normals
+    stride = int(result.meta.get("cloud_stride", 1))
+    if stride > 1:
+        height, width = result.depth.shape
+        blocks = image[::stride, ::stride]
+        image = cv2.resize(blocks, None, fx=stride, fy=stride, interpolation=cv2.INTER_NEAREST)
+        image = image[:height, :width]
     return image
 
 
@@ -132,6 +139,8 @@ def summary(result: Completion, url: str, written: list[Path]) -> str:
     t = result.timings_ms
     server = ", ".join(f"{p} {t.get(f'{p}_ms', 0):.1f}" for p in ("decode", "queue", "inference"))
     server += f", encode {t.get('encode_ms', 0):.1f} ms"
+    stride = meta.get("cloud_stride", 1)
+    thinned = f"; one per {stride} px in rows and columns" if stride > 1 else ""
     lines = [
         f"sdcnet {result.model_version} on {result.provider} at {url}",
         f"  image     {width} x {height}, {meta.get('returns', '?')} LIDAR returns",
@@ -139,7 +148,7 @@ def summary(result: Completion, url: str, written: list[Path]) -> str:
         f"  depth     {depth}",
         f"  sigma     {uncertainty}",
         f"  points    {len(result.points):,} ({meta.get('outliers_removed', 0)} outliers, "
-        f"{meta.get('uncertain_removed', 0)} above max_sigma removed)",
+        f"{meta.get('uncertain_removed', 0)} above max_sigma removed{thinned})",
         f"  latency   {result.latency_s * 1e3:.1f} ms round trip; server {server}",
         *(f"  caveat    {code}: {CAVEATS.get(code, '')}" for code in meta.get("caveats", [])),
         "  wrote     " + "  ".join(str(p) for p in written),

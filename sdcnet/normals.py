@@ -34,7 +34,7 @@ import numpy as np
 
 from sdcnet.camera import Intrinsics
 from sdcnet.pipeline import Completion, WorkingGrid
-from sdcnet.pointcloud import BAND_PIXELS
+from sdcnet.pointcloud import BAND_PIXELS, on_lattice
 
 #: Length of the one-sided differences, in working pixels: 1 follows the completion's
 #: ripple, 3 is within 0.1 degree of any longer step on the real spacecraft (docs/development.md).
@@ -233,22 +233,25 @@ def cloud_normals(
     pixels: np.ndarray,
     intrinsics: Intrinsics,
     band_pixels: int = BAND_PIXELS,
+    stride: int = 1,
 ) -> np.ndarray:
     """(N, 3) float32 unit normals of a completed frame at the True pixels of ``pixels`` (H, W
-    bool), in row-major order: those of the points ``back_project`` makes of them (pixels of
-    depth > 0). Found ``band_pixels`` at a time, so that beside the answer a million points
-    cost a band's indices, and taken straight into the answer (``np.take`` into its rows: 15
-    -> 7 ms for a million points, against an indexed copy then a second one)."""
+    bool) on every ``stride``-th row and column from the frame's first, in row-major order:
+    those of the points ``back_project`` makes of them (pixels of depth > 0). Found
+    ``band_pixels`` at a time, so that beside the answer a million points cost a band's
+    indices, and taken straight into the answer (``np.take`` into its rows: 15 -> 7 ms for a
+    million points, against an indexed copy then a second one)."""
     normals = WorkingNormals.of(completion, intrinsics)
+    pixels = on_lattice(pixels, stride)
     x0, y0, width, height = cv2.boundingRect(pixels.view(np.uint8))
     out = np.empty((int(np.count_nonzero(pixels)), 3), np.float32)
     step = max(1, band_pixels // max(width, 1))
     at = 0
-    columns = normals.cols[x0 : x0 + width]
+    rows, columns = normals.rows[::stride], normals.cols[::stride][x0 : x0 + width]
     for y in range(y0, y0 + height, step):
         chosen = pixels[y : y + step, x0 : x0 + width]
         # each pixel of the band's index into the box's normals, then the chosen ones'
-        index = (normals.rows[y : y + step, None] * np.int32(normals.width) + columns)[chosen]
+        index = (rows[y : y + step, None] * np.int32(normals.width) + columns)[chosen]
         np.take(normals.unit, index, axis=0, out=out[at : at + len(index)])
         at += len(index)
     return out

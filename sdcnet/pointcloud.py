@@ -21,6 +21,7 @@ It is vectorised over the grid: O(N (2r + 1)^2), ~0.3 s for a million points on 
 from __future__ import annotations
 
 import io
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -57,9 +58,14 @@ def mask_pixels(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def back_project(
-    depth: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics, band_pixels: int = BAND_PIXELS
+    depth: np.ndarray,
+    mask: np.ndarray,
+    intrinsics: Intrinsics,
+    band_pixels: int = BAND_PIXELS,
+    stride: int = 1,
 ) -> np.ndarray:
-    """(N, 3) float32 camera-frame points (metres) of the ``mask`` pixels with depth > 0, in
+    """(N, 3) float32 camera-frame points (metres) of the ``mask`` pixels with depth > 0 on
+    every ``stride``-th row and column from the frame's first (``cloud_stride``), in
     row-major order, computed ``band_pixels`` at a time (beside the points themselves).
 
     ``depth`` is camera-frame Z in metres (H, W); ``mask`` is a boolean (H, W) selection.
@@ -68,6 +74,7 @@ def back_project(
     9.5 ms for a million points of a 2048 x 2048 box, against the whole band computed and then
     selected, and 14 for each point's pixel gathered.
     """
+    depth, mask = on_lattice(depth, stride), on_lattice(mask, stride)
     x0, y0, width, height = cv2.boundingRect(mask.view(np.uint8))
     box = (slice(y0, y0 + height), slice(x0, x0 + width))
     depth = depth[box]
@@ -75,8 +82,8 @@ def back_project(
     step = _bands(height, width, band_pixels).step
     counts = [int(np.count_nonzero(valid[y : y + step])) for y in range(0, height, step)]
     points = np.empty((sum(counts), 3), np.float32)
-    u = np.arange(x0, x0 + width, dtype=np.float64) - intrinsics.cx
-    v = np.arange(y0, y0 + height, dtype=np.float64)[:, None] - intrinsics.cy
+    u = np.arange(x0, x0 + width, dtype=np.float64) * stride - intrinsics.cx
+    v = np.arange(y0, y0 + height, dtype=np.float64)[:, None] * stride - intrinsics.cy
     at = 0
     for y, count in zip(range(0, height, step), counts, strict=True):
         keep = valid[y : y + step]
@@ -88,6 +95,30 @@ def back_project(
         band[:, 1] = np.broadcast_to(v[y : y + step], keep.shape)[keep] * z / intrinsics.fy
         at += count
     return points
+
+
+#: A cloud holds at most this many points (``sdc-serve --max-points``): a larger mask's cloud
+#: takes every k-th pixel of its rows and columns (``cloud_stride``). The points' own work
+#: (back-projection and normals, about 20 ms a million on 2 threads) then stays within a
+#: frame's budget however large its mask: a 2048 x 2048 frame at docking range holds 1-2M
+#: (docs/development.md, "Measurements"). The depth map, mask and sigma stay whole.
+MAX_POINTS = 2**19
+
+
+def cloud_stride(pixels: np.ndarray, max_points: int) -> int:
+    """The smallest stride k (pixels) such that the True pixels of ``pixels`` (bool (H, W))
+    on every k-th row and column from the frame's first (``on_lattice``) number at most
+    ``max_points`` (>= 1)."""
+    stride = max(1, math.ceil(math.sqrt(np.count_nonzero(pixels) / max_points)))
+    while np.count_nonzero(pixels[::stride, ::stride]) > max_points:
+        stride += 1
+    return stride
+
+
+def on_lattice(image: np.ndarray, stride: int) -> np.ndarray:
+    """``image``'s pixels on every ``stride``-th row and column from its first, contiguous
+    (OpenCV takes no strided columns); ``image`` itself at stride 1."""
+    return image if stride == 1 else np.ascontiguousarray(image[::stride, ::stride])
 
 
 #: Without ``max_sigma``, a cloud to register keeps the points whose sigma is within this

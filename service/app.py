@@ -121,7 +121,7 @@ def create_app(
         )
         app.state.targets = configured_targets(settings) if targets is None else targets
         app.state.camera = configured_camera(settings) if camera is None else camera
-        app.state.engine = Engine(loaded)
+        app.state.engine = Engine(loaded, settings.max_points)
         yield
         app.state.engine = None  # not ready while shutting down
 

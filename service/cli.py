@@ -44,6 +44,7 @@ FLAGS = [
     ("--queue-timeout", "queue_timeout_s", float),
     ("--retry-after", "retry_after_s", int),
     ("--max-pixels", "max_pixels", int),
+    ("--max-points", "max_points", int),
     ("--max-returns", "max_returns", int),
     ("--max-upload-bytes", "max_upload_bytes", int),
     ("--body-timeout", "body_timeout_s", float),

@@ -153,6 +153,7 @@ def ply_comments(frame: FrameSummary, K: Intrinsics) -> list[str]:
         f"image {K.width} x {K.height}, {K.describe()}",
         f"outliers_removed {frame.outliers_removed}",
         f"uncertain_removed {frame.uncertain_removed}",
+        f"cloud_stride {frame.cloud_stride}",
         f"caveats {as_text(frame.caveats) or 'none'}",
     ]
 

@@ -25,7 +25,14 @@ from sdcnet.caveats import frame_caveats
 from sdcnet.compact import mask_window
 from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import Completion, Region, complete
-from sdcnet.pointcloud import back_project, statistical_outliers, trusted_pixels
+from sdcnet.pointcloud import (
+    MAX_POINTS,
+    back_project,
+    cloud_stride,
+    on_lattice,
+    statistical_outliers,
+    trusted_pixels,
+)
 from sdcnet.runtime.interface import ModelLoadError, Runtime
 from sdcnet.service.camera import ServiceCamera, camera_frame
 from sdcnet.service.decode import CompletionRequest, Frame, InputLimits, decode_form
@@ -83,10 +90,12 @@ class PhaseTimer:
 
 class Engine:
     """The model, loaded once, run one request at a time: the runtime already spreads one
-    inference over all its intra-op threads, so running two at once only makes both slower."""
+    inference over all its intra-op threads, so running two at once only makes both slower;
+    and the most points a frame's cloud holds (``max_points``: ``sdcnet.pointcloud``)."""
 
-    def __init__(self, model: Runtime):
+    def __init__(self, model: Runtime, max_points: int = MAX_POINTS):
         self.model = model
+        self.max_points = max_points
         self._lock = threading.Lock()
 
     def complete(
@@ -133,13 +142,14 @@ def self_test(model: Runtime) -> None:
 class Completed:
     """One completed frame, before any protocol serialises it: the pipeline's answer
     (``completion``: depth, mask and sigma, the region the network saw, and what the points'
-    normals are taken from), points float32 (N, 3) metres of the ``kept`` pixels (bool (H, W)),
-    the intrinsics used, the summary's counts and the sigma above which points left the cloud
-    (metres; ``None``: no limit)."""
+    normals are taken from), points float32 (N, 3) metres of the ``kept`` pixels (bool (H, W))
+    on every ``stride``-th row and column, the intrinsics used, the summary's counts and the
+    sigma above which points left the cloud (metres; ``None``: no limit)."""
 
     completion: Completion
     points: np.ndarray
     kept: np.ndarray
+    stride: int
     intrinsics: Intrinsics
     returns: int
     outliers_removed: int
@@ -171,12 +181,12 @@ class Completed:
     def normals(self) -> np.ndarray:
         """float32 (N, 3): each point's unit surface normal, camera frame, facing the camera,
         in the order of ``points`` (``sdcnet.normals``)."""
-        return cloud_normals(self.completion, self.kept, self.intrinsics)
+        return cloud_normals(self.completion, self.kept, self.intrinsics, stride=self.stride)
 
     @functools.cached_property
     def point_sigma(self) -> np.ndarray:
         """float32 (N,) metres: each point's sigma, in the order of ``points``."""
-        return self.sigma[self.kept]
+        return on_lattice(self.sigma, self.stride)[on_lattice(self.kept, self.stride)]
 
     @functools.cached_property
     def window(self) -> tuple[int, int, int, int]:
@@ -196,6 +206,7 @@ class Completed:
             returns=self.returns,
             foreground_px=int(np.count_nonzero(self.mask)),
             point_count=len(self.points),
+            cloud_stride=self.stride,
             outliers_removed=self.outliers_removed,
             uncertain_removed=self.uncertain_removed,
             caveats=frame_caveats(self.completion, self.returns),
@@ -229,7 +240,9 @@ def complete_frame(
     """Complete a validated frame (queue, inference) and back-project its points (timed as
     ``cloud_phase``): the pixels whose sigma is within the limit (``trusted_pixels``: the frame's
     ``max_sigma``, else its ``sigma_quantile`` when given), then the optional outlier removal
-    on those. What every protocol answers from, and what ``POST /pose`` registers."""
+    on those, and of those the pixels on every k-th row and column where they are more than
+    the engine's ``max_points`` (``cloud_stride``). What every protocol answers from, and what
+    ``POST /pose`` registers."""
     height, width = frame.gray.shape
     K = request_intrinsics(engine.model.info.intrinsics, width, height, frame)
     result = engine.complete(frame.gray, frame.sparse, K.fx, timer)
@@ -238,15 +251,17 @@ def complete_frame(
         valid = result.mask & (depth > 0)
         trusted, limit = trusted_pixels(valid, sigma, frame.max_sigma, sigma_quantile)
         kept = statistical_outliers(depth, trusted, K) if frame.outlier_removal else trusted
-        points = back_project(depth, kept, K)
+        stride = cloud_stride(kept, engine.max_points)
+        points = back_project(depth, kept, K, stride=stride)
         trusted_count = int(np.count_nonzero(trusted))
     return Completed(
         completion=result,
         points=points,
         kept=kept,
+        stride=stride,
         intrinsics=K,
         returns=int(np.count_nonzero(frame.sparse)),
-        outliers_removed=trusted_count - len(points),
+        outliers_removed=trusted_count - int(np.count_nonzero(kept)),
         uncertain_removed=int(np.count_nonzero(valid)) - trusted_count,
         sigma_limit=limit,
     )

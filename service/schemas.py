@@ -107,6 +107,11 @@ class FrameSummary(BaseModel):
     returns: int = Field(description="LIDAR returns in the sparse map")
     foreground_px: int = Field(description="pixels in the mask")
     point_count: int = Field(description="points in the cloud")
+    cloud_stride: int = Field(
+        description="the cloud holds the mask's pixels on every cloud_stride-th row and "
+        "column from the frame's first: 1, every pixel; more where the mask holds more than "
+        "the service's max_points"
+    )
     outliers_removed: int = Field(description="points dropped by statistical outlier removal")
     uncertain_removed: int = Field(
         description="points left out for a sigma above max_sigma (POST /pose: or above the "
@@ -207,7 +212,8 @@ class ModelMetadata(BaseModel):
     )
     metrics: dict[str, Any] = Field(description="the model card's headline metrics")
     limits: dict[str, int] = Field(
-        description="max_pixels, max_returns, max_upload_bytes, max_in_flight, max_requests"
+        description="max_pixels, max_returns, max_upload_bytes, max_points, max_in_flight, "
+        "max_requests"
     )
     targets: list[TargetInfo] = Field(
         default_factory=list, description="known targets of POST /pose (sdc-serve --targets)"

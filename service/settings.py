@@ -12,6 +12,7 @@ from fastapi import Request
 from pydantic import Field, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from sdcnet.pointcloud import MAX_POINTS
 from sdcnet.runtime.registry import DEFAULT_RUNTIME, RUNTIMES
 
 
@@ -101,6 +102,13 @@ class Settings(BaseSettings):
         ge=1,
         description="largest image (width x height) accepted: with max_upload_bytes, what "
         "bounds a request's memory (docs/service.md, the memory budget)",
+    )
+    max_points: int = Field(
+        default=MAX_POINTS,
+        ge=1,
+        description="points a cloud holds at most: a larger mask's cloud takes every k-th "
+        "pixel of its rows and columns, k as small as fits (the answer's cloud_stride), so "
+        "that its cost and size stay within a frame's budget; depth, mask and sigma stay whole",
     )
     max_returns: int = Field(
         default=2**20,

@@ -19,10 +19,10 @@ import pytest
 
 from sdcnet.camera import GivenIntrinsics
 from sdcnet.caveats import CAVEATS, FEW_RETURNS
-from sdcnet.client.api import Client, ServiceError
+from sdcnet.client.api import Client, Completion, ServiceError
 from sdcnet.client.batch import find_pairs
 from sdcnet.client.cli import frame_kwargs, main, parser
-from sdcnet.client.outputs import OUTPUT_FILES
+from sdcnet.client.outputs import OUTPUT_FILES, normal_image
 from sdcnet.dataset_format import SampleStore
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import complete
@@ -138,6 +138,21 @@ def test_infer_writes_five_files_that_match_the_service(url, frame_files, tmp_pa
     np.testing.assert_array_equal(np.load(tmp_path / "cut" / "sigma.npy"), sigma)
     removed = len(points) - len(cut.points)
     assert f"{removed} above max_sigma removed" in capsys.readouterr().out
+
+
+def test_the_preview_fills_each_block_of_a_strided_cloud_from_its_point():
+    """A cloud of every second pixel (``cloud_stride`` 2): each point's normal shows on its
+    2 x 2 block, cut at the frame's edge."""
+    depth = np.ones((5, 5), np.float32)
+    rows, cols = np.mgrid[0:5:2, 0:5:2].reshape(2, -1)
+    normals = np.zeros((len(rows), 3), np.float32)
+    normals[:, 2] = np.arange(1, len(rows) + 1)
+    empty = np.zeros((0, 3), np.float32)
+    result = Completion(depth, depth > 0, empty, depth, normals, meta={"cloud_stride": 2})
+    image = normal_image(result, (rows, cols))
+    assert image.shape == (5, 5, 3)
+    blocks = [[1, 1, 2, 2, 3]] * 2 + [[4, 4, 5, 5, 6]] * 2 + [[7, 7, 8, 8, 9]]
+    np.testing.assert_array_equal(image[..., 2], blocks)
 
 
 def test_python_api_returns_arrays(url, frame_files):

@@ -6,6 +6,7 @@ import pytest
 from sdcnet.camera import PAPER_CAMERA
 from sdcnet.pointcloud import (
     back_project,
+    cloud_stride,
     mask_pixels,
     ply_bytes,
     point_pixels,
@@ -56,6 +57,32 @@ def test_back_projection_is_the_pinhole_formula_per_pixel_in_bands_of_any_size()
         for band_pixels in (1, 500, 2**17):
             points = back_project(d, mask, K, band_pixels)
             np.testing.assert_array_equal(points, expected.astype(np.float32))
+
+
+def test_a_strided_cloud_is_the_pinhole_formula_on_every_kth_row_and_column():
+    rng = np.random.default_rng(4)
+    depth = (50 + 100 * rng.random((90, 130))).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = 0
+    mask = rng.random(depth.shape) < 0.5
+    mask[:5] = False
+    for stride in (1, 2, 3, 7):
+        rows, cols = np.nonzero(mask & (depth > 0))
+        on = (rows % stride == 0) & (cols % stride == 0)
+        rows, cols = rows[on], cols[on]
+        z = depth[rows, cols].astype(np.float64)
+        expected = np.stack([(cols - K.cx) * z / K.fx, (rows - K.cy) * z / K.fy, z], 1)
+        for band_pixels in (1, 2**17):
+            points = back_project(depth, mask, K, band_pixels, stride=stride)
+            np.testing.assert_array_equal(points, expected.astype(np.float32))
+
+
+@pytest.mark.parametrize(
+    ("max_points", "stride"), [(100, 1), (1000, 1), (99, 2), (25, 2), (24, 3), (16, 3), (1, 10)]
+)
+def test_the_cloud_stride_is_the_smallest_that_keeps_at_most_max_points(max_points, stride):
+    """A 10 x 10 mask all True holds 100 pixels, 25 on every second row and column, 16 on
+    every third, 1 on every tenth."""
+    assert cloud_stride(np.ones((10, 10), bool), max_points) == stride
 
 
 def test_mask_pixels_are_numpys_nonzero_in_its_order():

@@ -34,7 +34,7 @@ from sdcnet.caveats import FEW_RETURNS
 from sdcnet.client.api import Client
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import WORK_PIXELS, complete
-from sdcnet.pointcloud import back_project, read_ply, statistical_outliers
+from sdcnet.pointcloud import back_project, cloud_stride, read_ply, statistical_outliers
 from sdcnet.returns import returns_from_dense, scatter_nearest
 from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.service.admission import slot_routes
@@ -190,6 +190,7 @@ def test_model_metadata(client):
         "max_pixels": MAX_PIXELS,
         "max_returns": Settings.model_fields["max_returns"].default,
         "max_upload_bytes": MAX_UPLOAD_BYTES,
+        "max_points": Settings.model_fields["max_points"].default,
         "max_in_flight": MAX_IN_FLIGHT,
         "max_requests": MAX_REQUESTS,
     }
@@ -330,6 +331,46 @@ def test_max_sigma_leaves_exactly_the_points_above_it_out_of_every_answer(client
     np.testing.assert_array_equal(cloud.properties["sigma"], sigma[trusted])
     assert cloud.properties["sigma"].max() <= max_sigma
     assert f"uncertain_removed {as_json['uncertain_removed']}" in cloud.comments
+
+
+def test_a_cloud_holds_at_most_max_points_on_every_kth_pixel_and_says_so(url, model_path, tmp_path):
+    """``sdc-serve --max-points``: a mask of more pixels gives the points of every k-th row
+    and column, k the smallest that fits, in every format, each point with its own normal and
+    sigma; depth, mask and sigma stay whole, and the answer says k."""
+    with httpx.Client(base_url=url, timeout=60) as http:
+        whole = post(http, frame_files()).json()
+    depth, mask, sigma = (decoded(whole[k]) for k in ("depth", "mask", "sigma"))
+    valid = mask.astype(bool) & (depth > 0)
+    K = Intrinsics(**whole["intrinsics"], width=256, height=256)
+    assert whole["cloud_stride"] == 1 and whole["point_count"] == np.count_nonzero(valid) > 3000
+    max_points = 1000
+    with (
+        running_service(model_path, tmp_path / "serve.log", f"--max-points={max_points}") as url,
+        httpx.Client(base_url=url, timeout=60) as http,
+    ):
+        assert http.get("/model").json()["limits"]["max_points"] == max_points
+        thin = post(http, frame_files()).json()
+        npz = post(http, frame_files(), format="npz")
+        cloud = read_ply(post(http, frame_files(), format="ply").content)
+    for name, array in (("depth", depth), ("mask", mask), ("sigma", sigma)):
+        np.testing.assert_array_equal(decoded(thin[name]), array, err_msg=name)
+    stride = thin["cloud_stride"]
+    on_lattice = np.zeros_like(valid)
+    on_lattice[::stride, ::stride] = valid[::stride, ::stride]
+    assert stride == cloud_stride(valid, max_points) > 1
+    assert np.count_nonzero(valid[:: stride - 1, :: stride - 1]) > max_points  # the smallest
+    points = decoded(thin["points"])
+    np.testing.assert_array_equal(points, back_project(depth, on_lattice, K))
+    assert len(points) == thin["point_count"] <= max_points
+    # each point keeps the normal and the sigma of its pixel in the whole cloud
+    in_whole = on_lattice[valid]
+    np.testing.assert_array_equal(decoded(thin["normals"]), decoded(whole["normals"])[in_whole])
+    np.testing.assert_array_equal(cloud.properties["sigma"], sigma[on_lattice])
+    np.testing.assert_array_equal(cloud.points, points)
+    assert f"cloud_stride {stride}" in cloud.comments
+    with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
+        np.testing.assert_array_equal(archive["points"], points)
+        assert json.loads(archive["meta.json"])["cloud_stride"] == stride
 
 
 def test_every_answer_says_when_its_mask_rests_on_few_returns(client):

@@ -87,6 +87,7 @@ async def model_metadata(
             "max_pixels": settings.max_pixels,
             "max_returns": settings.max_returns,
             "max_upload_bytes": settings.max_upload_bytes,
+            "max_points": settings.max_points,
             "max_in_flight": settings.max_in_flight,
             "max_requests": settings.max_requests,
         },

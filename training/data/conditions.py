@@ -162,6 +162,15 @@ ROBUSTNESS: dict[str, World] = {
             (),
             replace(ANY_SCENE, min_distance_m=2.0, max_distance_m=10.0),
         ),
+        # the costliest frames: the spacecraft overflowing a 2048 px camera, millions of pixels
+        World(
+            "docking-2048",
+            CameraDraw(hfov_deg=(40.0, 60.0), widths=(2048,), aspects=(1.0,)),
+            "any",
+            ("flash", "grid"),
+            (),
+            replace(ANY_SCENE, min_distance_m=2.0, max_distance_m=10.0),
+        ),
         World(
             "narrow-far",
             CameraDraw(hfov_deg=(5.0, 5.0), widths=(2048,), aspects=(1.0,)),
