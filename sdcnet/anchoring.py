@@ -94,8 +94,9 @@ MIN_NOISE_M = 1e-3
 #: footprints (depth / focal length) per pixel between them is across a depth edge.
 EDGE_FOOTPRINTS_PER_PX = 8.0
 
-#: ``anchored_sigma``'s coefficients (fit on validation frames of the mixed world and of the
-#: paper's camera: docs/development.md, "Measurements"): the network's sigma, rescaled by the
+#: ``anchored_sigma``'s coefficients (fit on validation frames of the mixed world, the last
+#: four refitted on the `any` world's: docs/development.md, "Measurements"): the network's
+#: sigma, rescaled by the
 #: frame's error ratio at the returns, counts ``SIGMA_AT_RETURN`` times at a return, and
 #: ``SIGMA_PER_APART_M`` times per metre of lateral distance to the nearest return, in
 #: quadrature; ...
@@ -103,9 +104,9 @@ SIGMA_AT_RETURN = 1.15
 SIGMA_PER_APART_M = 15.3
 #: ... the local misfit (metres), the frame's noise (metres, a standard deviation) and the
 #: disagreement with the nearest return (metres) this many times, all in quadrature.
-SIGMA_PER_MISFIT = 0.97
-SIGMA_PER_NOISE = 0.35
-SIGMA_PER_DISAGREEMENT = 0.34
+SIGMA_PER_MISFIT = 1.0
+SIGMA_PER_NOISE = 0.44
+SIGMA_PER_DISAGREEMENT = 0.88
 #: The frame's error ratio is at least this: a network that fits the returns exactly is not
 #: exact between them.
 MIN_ERROR_RATIO = 0.02
@@ -126,10 +127,10 @@ SIGMA_APART_PX_POWER = 0.2
 #: sigma, may lie across the silhouette, the interior's 84 %) ...
 SIGMA_OUTLINE_GAIN = 0.6
 SIGMA_OUTLINE_PX = 3.0
-#: ... and times this, so that about three quarters of the errors are within one sigma and
-#: nine tenths within two (the errors' tails are heavier than a Gaussian's: no one scale
-#: gives 68 and 95 %; docs/development.md, "Measurements").
-SIGMA_SCALE = 0.59
+#: ... and times this, so that 70-76 % of the errors are within one sigma and nine tenths
+#: within two (the errors' tails are heavier than a Gaussian's: no one scale gives 68 and
+#: 95 %; docs/development.md, "Measurements").
+SIGMA_SCALE = 0.415
 
 
 @dataclass(frozen=True)

@@ -182,8 +182,9 @@ def test_the_sigma_follows_how_wrong_the_network_was_at_the_returns():
         predicted = truth + error_m * offsets
         anchored = anchor_to_returns(predicted, truth > 0, sparse, sigma_px=2.0, focal_px=FOCAL_PX)
         sigmas.append(anchored_sigma(network, anchored, truth > 0)[80, 80])
-    # within 1 %: the metres per pixel of apart_m follow the depth, which moved by the error
-    assert sigmas[1] == pytest.approx(3 * sigmas[0], rel=1e-2)
+    # within 6 %: the metres per pixel of apart_m follow the depth, which moved by the error,
+    # and the misfit, the disagreement and the noise (capped) grow with it, not in proportion
+    assert sigmas[1] == pytest.approx(3 * sigmas[0], rel=0.06)
 
 
 def test_a_surface_off_by_metres_at_every_return_is_not_taken_for_noise():
