@@ -54,9 +54,11 @@ MARKER = "hostile-marker"  # a file that only code run by unpickling would creat
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory, tiny_model_path):
-    """The service with small limits, after one real frame (so its memory is warmed up)."""
+    """The service with small limits, after one real frame (so its memory is warmed up); a
+    point a pixel in every cloud, the heaviest answer the memory budget allows for."""
     log = tmp_path_factory.mktemp("hostile") / "serve.log"
     flags = [f"--max-pixels={MAX_PIXELS}", f"--max-upload-bytes={MAX_UPLOAD_BYTES}"]
+    flags += [f"--max-points={MAX_PIXELS}"]
     flags += [f"--max-returns={MAX_RETURNS}"]
     flags += [f"--body-timeout={BODY_TIMEOUT_S}", "--max-in-flight=2"]
     with service_process(tiny_model_path, log, *flags) as running:
