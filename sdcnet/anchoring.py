@@ -96,10 +96,9 @@ EDGE_FOOTPRINTS_PER_PX = 8.0
 
 #: ``anchored_sigma``'s coefficients (fit on validation frames of the mixed world, the last
 #: four refitted on the `any` world's: docs/development.md, "Measurements"): the network's
-#: sigma, rescaled by the
-#: frame's error ratio at the returns, counts ``SIGMA_AT_RETURN`` times at a return, and
-#: ``SIGMA_PER_APART_M`` times per metre of lateral distance to the nearest return, in
-#: quadrature; ...
+#: sigma, rescaled by the frame's error ratio at the returns, counts ``SIGMA_AT_RETURN`` times
+#: at a return, and ``SIGMA_PER_APART_M`` times per metre of lateral distance to the nearest
+#: return, in quadrature; ...
 SIGMA_AT_RETURN = 1.15
 SIGMA_PER_APART_M = 15.3
 #: ... the local misfit (metres), the frame's noise (metres, a standard deviation) and the

@@ -74,7 +74,7 @@ def back_project(
     9.5 ms for a million points of a 2048 x 2048 box, against the whole band computed and then
     selected, and 14 for each point's pixel gathered.
     """
-    depth, mask = on_lattice(depth, stride), on_lattice(mask, stride)
+    depth, mask = depth[::stride, ::stride], on_lattice(mask, stride)
     x0, y0, width, height = cv2.boundingRect(mask.view(np.uint8))
     box = (slice(y0, y0 + height), slice(x0, x0 + width))
     depth = depth[box]
@@ -116,8 +116,8 @@ def cloud_stride(pixels: np.ndarray, max_points: int) -> int:
 
 
 def on_lattice(image: np.ndarray, stride: int) -> np.ndarray:
-    """``image``'s pixels on every ``stride``-th row and column from its first, contiguous
-    (OpenCV takes no strided columns); ``image`` itself at stride 1."""
+    """``image``'s pixels on every ``stride``-th row and column from its first, contiguous,
+    for OpenCV, which takes no strided columns; ``image`` itself at stride 1."""
     return image if stride == 1 else np.ascontiguousarray(image[::stride, ::stride])
 
 

@@ -29,7 +29,6 @@ from sdcnet.pointcloud import (
     MAX_POINTS,
     back_project,
     cloud_stride,
-    on_lattice,
     statistical_outliers,
     trusted_pixels,
 )
@@ -186,7 +185,8 @@ class Completed:
     @functools.cached_property
     def point_sigma(self) -> np.ndarray:
         """float32 (N,) metres: each point's sigma, in the order of ``points``."""
-        return on_lattice(self.sigma, self.stride)[on_lattice(self.kept, self.stride)]
+        stride = self.stride
+        return self.sigma[::stride, ::stride][self.kept[::stride, ::stride]]
 
     @functools.cached_property
     def window(self) -> tuple[int, int, int, int]:

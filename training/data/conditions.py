@@ -130,6 +130,17 @@ ANY = World("any", CameraDraw(), "any", (), (), ANY_SCENE, sun_share=0.08)
 #: The training mixture: this share of frames from ``PAPER``, the rest from ``ANY``.
 MIXED_PAPER_SHARE = 0.25
 
+#: Docking range: a flash array or a scanning grid at 2-10 m, the spacecraft overflowing the
+#: frame.
+DOCKING = World(
+    "docking",
+    CameraDraw(hfov_deg=(40.0, 60.0), widths=(1024, 1280), aspects=(1.0, 4 / 3)),
+    "any",
+    ("flash", "grid"),
+    (),
+    replace(ANY_SCENE, min_distance_m=2.0, max_distance_m=10.0),
+)
+
 #: The robustness suite: one condition per factor pushed away from the paper's world.
 _PAPER_RANGE = SceneConfig()
 ROBUSTNESS: dict[str, World] = {
@@ -154,22 +165,12 @@ ROBUSTNESS: dict[str, World] = {
             (),
             replace(ANY_SCENE, min_distance_m=4.0, max_distance_m=130.0),
         ),
-        World(
-            "docking",
-            CameraDraw(hfov_deg=(40.0, 60.0), widths=(1024, 1280), aspects=(1.0, 4 / 3)),
-            "any",
-            ("flash", "grid"),
-            (),
-            replace(ANY_SCENE, min_distance_m=2.0, max_distance_m=10.0),
-        ),
-        # the costliest frames: the spacecraft overflowing a 2048 px camera, millions of pixels
-        World(
-            "docking-2048",
-            CameraDraw(hfov_deg=(40.0, 60.0), widths=(2048,), aspects=(1.0,)),
-            "any",
-            ("flash", "grid"),
-            (),
-            replace(ANY_SCENE, min_distance_m=2.0, max_distance_m=10.0),
+        DOCKING,
+        # the costliest frames: docking at 2048 x 2048 px, millions of pixels on the spacecraft
+        replace(
+            DOCKING,
+            name="docking-2048",
+            camera=replace(DOCKING.camera, widths=(2048,), aspects=(1.0,)),
         ),
         World(
             "narrow-far",
