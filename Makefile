@@ -246,6 +246,8 @@ bench: $(STAMP) $(THIRD_ONNX) $(EIGHTH_ONNX)
 		--data data/paper --split test --limit 192
 	$(PY) -m benchmarks.service_latency --requests 60
 	$(PY) -m benchmarks.load --requests 2000 --concurrency 32
+	$(PY) -m benchmarks.mask_trust --onnx models/sdcnet.onnx --limit 288 \
+		--sets $(addprefix data/robustness/,$(CONDITIONS)) data/real data/paper:test
 
 ## ablation: the paper's Tables 4 and 5 on the mixed world with the cpu recipe (needs $(RUN)c from
 ## `make model`). Table 5: every fusion variant trains stage 2 on $(RUN)c's frozen FSNet (the

@@ -141,10 +141,13 @@ def summary(result: Completion, url: str, written: list[Path]) -> str:
     server += f", encode {t.get('encode_ms', 0):.1f} ms"
     stride = meta.get("cloud_stride", 1)
     thinned = f"; one per {stride} px in rows and columns" if stride > 1 else ""
+    iou = meta.get("mask_iou_estimate")
+    estimate = f", IOU {100 * iou:.0f} % as the network expects it" if iou is not None else ""
     lines = [
         f"sdcnet {result.model_version} on {result.provider} at {url}",
         f"  image     {width} x {height}, {meta.get('returns', '?')} LIDAR returns",
-        f"  mask      {int(result.mask.sum()):,} px ({100 * result.mask.sum() / pixels:.1f} %)",
+        f"  mask      {int(result.mask.sum()):,} px ({100 * result.mask.sum() / pixels:.1f} %)"
+        f"{estimate}",
         f"  depth     {depth}",
         f"  sigma     {uncertainty}",
         f"  points    {len(result.points):,} ({meta.get('outliers_removed', 0)} outliers, "

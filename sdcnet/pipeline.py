@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 
 from sdcnet.anchoring import anchor_to_returns, anchored_sigma, spreading_sigma_px
+from sdcnet.caveats import mask_iou_estimate
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
 from sdcnet.returns import scatter_nearest
 from sdcnet.surface import smoothed_between_returns
@@ -444,6 +445,9 @@ class Completion:
     sigma: np.ndarray | None = None  # (H, W) float32 metres, 0 off the mask; None: model has none
     working_sigma: np.ndarray | None = None  # (h', w') float32 metres: what sigma resamples
     cuts: FieldCuts | None = None  # where the LIDAR's field cut the spacecraft (frame pixels)
+    #: the IOU the mask is likely to score, from the network's own foreground probability on
+    #: the working grid (``sdcnet.caveats.mask_iou_estimate``)
+    mask_iou_estimate: float = 1.0
 
     @property
     def region(self) -> Region:
@@ -701,5 +705,15 @@ def complete(
         served_w = anchored_sigma(sigma_w, anchored, mask_w)
         sigma = on_mask(resample_depth(served_w, shape, math.inf, box), mask, at)
     return Completion(
-        depth, mask, prob_crop, grid, surface, mask_w, inputs.gray, sigma, served_w, inputs.cuts
+        depth,
+        mask,
+        prob_crop,
+        grid,
+        surface,
+        mask_w,
+        inputs.gray,
+        sigma,
+        served_w,
+        inputs.cuts,
+        mask_iou_estimate(prob_w, mask_w),
     )

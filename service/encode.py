@@ -154,6 +154,7 @@ def ply_comments(frame: FrameSummary, K: Intrinsics) -> list[str]:
         f"outliers_removed {frame.outliers_removed}",
         f"uncertain_removed {frame.uncertain_removed}",
         f"cloud_stride {frame.cloud_stride}",
+        f"mask_iou_estimate {frame.mask_iou_estimate:.4f}",
         f"caveats {as_text(frame.caveats) or 'none'}",
     ]
 

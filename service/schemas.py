@@ -7,7 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from sdcnet.caveats import CAVEATS
+from sdcnet.caveats import CAVEATS, MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU
 
 
 class ResponseFormat(StrEnum):
@@ -116,6 +116,15 @@ class FrameSummary(BaseModel):
     uncertain_removed: int = Field(
         description="points left out for a sigma above max_sigma (POST /pose: or above the "
         "frame's own limit)"
+    )
+    mask_iou_estimate: float = Field(
+        ge=0.0,
+        le=1.0,
+        description="the IOU the mask is likely to score against the spacecraft's true "
+        "outline, from the network's own foreground probability p: (sum of p on the mask / "
+        f"(mask pixels + sum of p off it)) ** {MASK_IOU_EXPONENT}; below "
+        f"{UNCERTAIN_MASK_IOU} the caveat mask_uncertain (docs/service.md, Caveats: how it "
+        "compares with the IOU measured)",
     )
     caveats: list[str] = Field(
         description="what the mask may not hold, by code (empty: nothing known; in the Open "

@@ -1,15 +1,34 @@
 """The caveats a completed frame's answer carries: what its mask may not hold."""
 
+import cv2
 import numpy as np
+import pytest
 
-from sdcnet.caveats import CAVEATS, FEW_RETURNS, frame_caveats
-from sdcnet.pipeline import complete
+from sdcnet.caveats import (
+    CAVEATS,
+    FEW_RETURNS,
+    MASK_IOU_EXPONENT,
+    UNCERTAIN_MASK_IOU,
+    expected_iou,
+    frame_caveats,
+    mask_iou_estimate,
+)
+from sdcnet.pipeline import ModelFn, complete
 from tests.test_pipeline import FX, bright_model, frame, panel_past_the_field
 
 
-def caveats_of(gray: np.ndarray, sparse: np.ndarray) -> list[str]:
-    result = complete(bright_model([]), gray, sparse, FX, stride=64)
+def caveats_of(gray: np.ndarray, sparse: np.ndarray, model: ModelFn | None = None) -> list[str]:
+    result = complete(model or bright_model([]), gray, sparse, FX, stride=64)
     return frame_caveats(result, int(np.count_nonzero(sparse)))
+
+
+def doubtful_model(gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray):
+    """A stand-in network sure of nothing: probability 0.55 where the gray image is bright,
+    0.45 in a band 8 working pixels wide around it, depth 100 m."""
+    bright = (gray[0, 0] > 0.5).astype(np.uint8)
+    band = cv2.dilate(bright, np.ones((17, 17), np.uint8)) > bright
+    prob = np.where(bright > 0, 0.55, np.where(band, 0.45, 0.0)).astype(np.float32)
+    return np.full_like(gray, 100.0), prob[None, None]
 
 
 def test_a_well_covered_frame_has_none():
@@ -33,6 +52,35 @@ def test_a_lidar_field_ending_across_the_spacecraft_says_so():
     assert caveats_of(dark, sparse) == []
 
 
+def test_the_expected_iou_is_the_probabilitys_intersection_over_its_union():
+    prob = np.zeros((10, 10), np.float32)
+    mask = np.zeros((10, 10), bool)
+    mask[:4] = True  # 40 pixels
+    prob[:4] = 1.0
+    assert expected_iou(prob, mask) == 1.0  # certain, and the mask follows it
+    prob[:4] = 0.5
+    prob[4:6] = 0.25  # 20 pixels off the mask, a quarter likely the spacecraft's
+    assert expected_iou(prob, mask) == pytest.approx(20 / (40 + 5))
+    assert expected_iou(prob, np.zeros_like(mask)) == 0.0
+    assert expected_iou(np.zeros_like(prob), np.zeros_like(mask)) == 0.0
+    estimate = mask_iou_estimate(prob, mask)  # the network surer than right: lowered
+    assert estimate == pytest.approx((20 / 45) ** MASK_IOU_EXPONENT) and estimate < 20 / 45
+    prob[0, 0], prob[9, 9] = 7.0, -3.0  # another model's output, outside [0, 1]: clipped
+    assert expected_iou(prob, mask) == pytest.approx(20.5 / (40 + 5))
+    prob[0, 1], prob[5, 5] = np.nan, np.nan  # taken as 0, as the mask takes them
+    assert expected_iou(prob, mask) == pytest.approx(20.0 / (40 + 4.75))
+
+
+def test_a_mask_the_network_doubts_says_so():
+    gray, sparse = frame()
+    certain = complete(bright_model([]), gray, sparse, FX, stride=64)
+    assert certain.mask_iou_estimate == 1.0
+    doubtful = complete(doubtful_model, gray, sparse, FX, stride=64)
+    np.testing.assert_array_equal(doubtful.mask, certain.mask)  # the same mask, in doubt
+    assert doubtful.mask_iou_estimate < UNCERTAIN_MASK_IOU
+    assert caveats_of(gray, sparse, doubtful_model) == ["mask_uncertain"]
+
+
 def test_every_code_has_a_meaning():
-    assert set(CAVEATS) == {"few_returns", "lidar_field_cut"}
+    assert set(CAVEATS) == {"few_returns", "lidar_field_cut", "mask_uncertain"}
     assert all(len(meaning) > 40 for meaning in CAVEATS.values())

@@ -30,7 +30,7 @@ from fastapi.testclient import TestClient
 
 from sdcnet.calibration import CameraCalibration, Undistorter
 from sdcnet.camera import Intrinsics
-from sdcnet.caveats import FEW_RETURNS
+from sdcnet.caveats import FEW_RETURNS, UNCERTAIN_MASK_IOU
 from sdcnet.client.api import Client
 from sdcnet.npyio import npy_bytes
 from sdcnet.pipeline import WORK_PIXELS, complete
@@ -227,6 +227,8 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     assert body["provider"] == "CPUExecutionProvider"
     assert body["intrinsics"] == pytest.approx({"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy})
     assert body["returns"] == np.count_nonzero(s.sparse)
+    assert body["mask_iou_estimate"] == round(direct.mask_iou_estimate, 4)
+    assert 0.0 < direct.mask_iou_estimate < 1.0  # the tiny model's probability is the gray
     assert set(body["timings"]) == {"decode_ms", "queue_ms", "inference_ms", "encode_ms"}
     assert "inference;dur=" in response.headers["server-timing"]
 
@@ -373,20 +375,37 @@ def test_a_cloud_holds_at_most_max_points_on_every_kth_pixel_and_says_so(url, mo
         assert json.loads(archive["meta.json"])["cloud_stride"] == stride
 
 
-def test_every_answer_says_when_its_mask_rests_on_few_returns(client):
-    """The caveats (``sdcnet.caveats``) in the JSON answer, the npz's meta.json and the PLY's
-    header: none for the test frame, ``few_returns`` when most of its returns are left out."""
-    assert post(client, frame_files()).json()["caveats"] == []
+def test_every_answer_says_when_its_mask_rests_on_few_returns_or_is_in_doubt(client):
+    """The caveats (``sdcnet.caveats``) and the mask's estimated IOU in the JSON answer, the
+    npz's meta.json and the PLY's header: ``few_returns`` when most of the test frame's
+    returns are left out; ``mask_uncertain`` with the estimate below its floor (the tiny
+    model's probability is the gray image: its outline is in doubt where the image is dim)."""
+    whole = post(client, frame_files()).json()
+    assert whole["caveats"] == uncertain(whole["mask_iou_estimate"])
     sparse = frame().sparse.copy()
     rows, cols = np.nonzero(sparse)
     sparse[rows[FEW_RETURNS // 2 :], cols[FEW_RETURNS // 2 :]] = 0
-    files = frame_files(sparse=npy_bytes(sparse))
-    assert post(client, files).json()["caveats"] == ["few_returns"]
+    few = post(client, frame_files(sparse=npy_bytes(sparse))).json()
+    expected = ["few_returns", *uncertain(few["mask_iou_estimate"])]
+    assert few["caveats"] == expected
     npz = post(client, frame_files(sparse=npy_bytes(sparse)), format="npz")
     with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
-        assert json.loads(archive["meta.json"])["caveats"] == ["few_returns"]
+        meta = json.loads(archive["meta.json"])
+    assert meta["caveats"] == expected and meta["mask_iou_estimate"] == few["mask_iou_estimate"]
     cloud = read_ply(post(client, frame_files(sparse=npy_bytes(sparse)), format="ply").content)
-    assert "caveats few_returns" in cloud.comments
+    assert f"caveats {','.join(expected)}" in cloud.comments
+    assert f"mask_iou_estimate {few['mask_iou_estimate']:.4f}" in cloud.comments
+
+    assert whole["caveats"] == ["mask_uncertain"]  # gray 150-230: probability 0.59-0.90
+    gray = frame().gray
+    sure = np.where(gray >= 150, 255, gray).astype(np.uint8)  # the craft white: probability 1
+    answer = post(client, frame_files(gray=png_bytes(sure))).json()
+    assert answer["mask_iou_estimate"] > 0.9 and answer["caveats"] == []  # doubt: the outline
+
+
+def uncertain(estimate: float) -> list[str]:
+    """The ``mask_uncertain`` caveat an answer whose mask is estimated at ``estimate`` carries."""
+    return ["mask_uncertain"] if estimate < UNCERTAIN_MASK_IOU else []
 
 
 @pytest.mark.parametrize(

@@ -16,6 +16,7 @@ import tritonclient.http as triton
 from tritonclient.utils import InferenceServerException
 
 from sdcnet.camera import Intrinsics
+from sdcnet.caveats import UNCERTAIN_MASK_IOU
 from sdcnet.client.api import Client
 from sdcnet.client.protocol import summary
 from sdcnet.compact import depth_from_fp16, paste, unpack_mask
@@ -171,11 +172,18 @@ def test_the_caveats_travel_as_one_parameter_and_come_back_as_a_list(url):
     s = generated(256)
     returns = returns_from_dense(s.sparse)
     _, result = triton_infer(url, {"gray": s.gray, "returns": returns}, True)
+    parameters = result.get_response()["parameters"]
+    assert parameters["caveats"] == "mask_uncertain"  # the tiny model: probability = gray
+    assert parameters["mask_iou_estimate"] < UNCERTAIN_MASK_IOU
+    sure = np.where(s.gray >= 150, 255, s.gray).astype(np.uint8)  # probability 1 on the craft
+    _, result = triton_infer(url, {"gray": sure, "returns": returns}, True)
     assert result.get_response()["parameters"]["caveats"] == ""
-    _, result = triton_infer(url, {"gray": s.gray, "returns": returns[:5]}, True)
+    _, result = triton_infer(url, {"gray": sure, "returns": returns[:5]}, True)
     document = result.get_response()
     assert document["parameters"]["caveats"] == "few_returns"
     assert summary(document)["caveats"] == ["few_returns"]
+    _, result = triton_infer(url, {"gray": s.gray, "returns": returns[:5]}, True)
+    assert summary(result.get_response())["caveats"] == ["few_returns", "mask_uncertain"]
 
 
 def test_the_service_lets_idle_onnxruntime_threads_sleep(model_path):

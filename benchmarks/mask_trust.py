@@ -1,0 +1,205 @@
+"""Whether an answer says when its mask is not to be trusted: the IOU each answer estimates
+for its mask (``mask_iou_estimate``, ``sdcnet.caveats``) beside the IOU measured, and the poor
+masks (IOU below ``POOR_IOU``) its caveats mark.
+
+    python -m benchmarks.mask_trust --onnx models/sdcnet.onnx --sets data/any-s21:val \\
+        data/robustness/* data/real data/paper:test --limit 288
+
+Each set is a dataset directory, ``DIR:SPLIT`` for one split of it, at most ``--limit`` frames
+each, evenly spread; every frame runs through ``sdcnet.pipeline.complete`` as the service runs
+it. Writes docs/benchmarks/mask_trust.md and .json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from benchmarks.common import DOCS, write_markdown
+from sdcnet.caveats import MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU, frame_caveats
+from sdcnet.dataset_format import SampleStore, evenly_spread
+from sdcnet.evaluation.scoring import network
+from sdcnet.pipeline import return_pixels
+from sdcnet.runtime.onnx import OnnxModel
+
+#: A mask below this IOU is a poor one, which an answer should say it may be.
+POOR_IOU = 0.7
+#: Edges of the estimate's bins in the calibration table.
+BINS = (0.0, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0)
+
+
+def set_records(spec: str, limit: int | None) -> tuple[SampleStore, list[dict]]:
+    """The store and records of one ``DIR`` or ``DIR:SPLIT``."""
+    root, _, split = spec.partition(":")
+    store = SampleStore(root)
+    if split:
+        return store, store.split(split, limit)
+    return store, evenly_spread(store.records, limit) if limit else store.records
+
+
+def frame_rows(model: OnnxModel, spec: str, limit: int | None) -> list[dict]:
+    """Per frame: the IOU measured, the answer's estimate and its caveats."""
+    method = network(model.run, model.stride, model.info.work_pixels)
+    store, records = set_records(spec, limit)
+    rows = []
+    for record in tqdm(records, desc=spec, unit="frame", leave=False):
+        sample = store.load(record)
+        answer = method(sample)
+        truth, mask = sample.depth > 0, answer.mask
+        union = np.count_nonzero(truth | mask)
+        returns = len(return_pixels(sample.sparse)[0])
+        rows.append(
+            {
+                "id": sample.meta["id"],
+                "iou": np.count_nonzero(truth & mask) / union if union else 1.0,
+                "estimate": answer.completion.mask_iou_estimate,
+                "caveats": frame_caveats(answer.completion, returns),
+            }
+        )
+    return rows
+
+
+def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's: the Pearson correlation of the ranks (no ties among continuous values)."""
+    ra, rb = np.argsort(np.argsort(a)), np.argsort(np.argsort(b))
+    return float(np.corrcoef(ra, rb)[0, 1])
+
+
+def set_summary(rows: list[dict]) -> dict:
+    """One set's row of the table."""
+    iou = np.array([r["iou"] for r in rows])
+    estimate = np.array([r["estimate"] for r in rows])
+    poor = iou < POOR_IOU
+    before = np.array([any(c != "mask_uncertain" for c in r["caveats"]) for r in rows])
+    flagged = np.array([bool(r["caveats"]) for r in rows])
+    return {
+        "frames": len(rows),
+        "iou": float(iou.mean()),
+        "estimate": float(estimate.mean()),
+        "abs_error": float(np.abs(estimate - iou).mean()),
+        "rank_correlation": rank_correlation(estimate, iou),
+        "poor": int(poor.sum()),
+        "poor_marked_before": int((poor & before).sum()),
+        "poor_marked": int((poor & flagged).sum()),
+        "marked": int(flagged.sum()),
+        "iou_marked": float(iou[flagged].mean()) if flagged.any() else float("nan"),
+        "iou_unmarked": float(iou[~flagged].mean()) if (~flagged).any() else float("nan"),
+    }
+
+
+def calibration(rows: list[dict]) -> list[dict]:
+    """The frames binned by their estimate: mean estimate and mean IOU measured per bin."""
+    iou = np.array([r["iou"] for r in rows])
+    estimate = np.array([r["estimate"] for r in rows])
+    out = []
+    for lo, hi in itertools.pairwise(BINS):
+        inside = (estimate >= lo) & ((estimate < hi) | (hi == BINS[-1]))
+        if inside.any():
+            out.append(
+                {
+                    "bin": f"{lo:.2f}-{hi:.2f}",
+                    "frames": int(inside.sum()),
+                    "estimate": float(estimate[inside].mean()),
+                    "iou": float(iou[inside].mean()),
+                }
+            )
+    return out
+
+
+def fitted_exponent(rows: list[dict]) -> float:
+    """The exponent of ``expected_iou`` that fits the IOU measured on ``rows`` best (least
+    squares, to 0.01): how ``MASK_IOU_EXPONENT`` was chosen, on the validation frames."""
+    raw = np.array([r["estimate"] for r in rows]) ** (1 / MASK_IOU_EXPONENT)
+    iou = np.array([r["iou"] for r in rows])
+    exponents = np.arange(0.5, 4.0, 0.01)
+    errors = [np.sum((raw**e - iou) ** 2) for e in exponents]
+    return float(exponents[int(np.argmin(errors))])
+
+
+def pct(value: float) -> str:
+    return f"{100 * value:.1f}"
+
+
+def sets_table(summaries: dict[str, dict]) -> str:
+    lines = [
+        "| set | frames | IOU % | estimated % | mean abs. difference, points | rank correlation | "
+        f"IOU < {pct(POOR_IOU)} % | of which marked, before / now | frames marked | "
+        "IOU marked / not % |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, s in summaries.items():
+        lines.append(
+            f"| {name} | {s['frames']} | {pct(s['iou'])} | {pct(s['estimate'])} | "
+            f"{pct(s['abs_error'])} | {s['rank_correlation']:.2f} | {s['poor']} | "
+            f"{s['poor_marked_before']} / {s['poor_marked']} | {s['marked']} | "
+            f"{pct(s['iou_marked'])} / {pct(s['iou_unmarked'])} |"
+        )
+    return "\n".join(lines)
+
+
+def calibration_table(bins: list[dict]) -> str:
+    lines = ["| estimate | frames | mean estimate % | mean IOU % |", "|---|---|---|---|"]
+    lines += [
+        f"| {b['bin']} | {b['frames']} | {pct(b['estimate'])} | {pct(b['iou'])} |" for b in bins
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--onnx", type=Path, default=Path("models/sdcnet.onnx"))
+    p.add_argument("--sets", nargs="+", required=True, help="DIR or DIR:SPLIT, each a set")
+    p.add_argument("--limit", type=int, default=None, help="frames per set, evenly spread")
+    p.add_argument(
+        "--fitted-on",
+        default="data/any-s21:val",
+        help="the set MASK_IOU_EXPONENT was fitted on: left out of the pooled calibration",
+    )
+    p.add_argument("--threads", type=int, default=2)
+    args = p.parse_args(argv)
+
+    model = OnnxModel(args.onnx, threads=args.threads)
+    rows = {spec: frame_rows(model, spec, args.limit) for spec in args.sets}
+    summaries = {spec: set_summary(r) for spec, r in rows.items()}
+    unseen = [row for spec, r in rows.items() if spec != args.fitted_on for row in r]
+    bins = calibration(unseen)
+    fitted = (
+        f"Fitted on its {len(rows[args.fitted_on])} frames again, the least-squares exponent is "
+        f"{fitted_exponent(rows[args.fitted_on]):.2f}."
+        if args.fitted_on in rows
+        else f"(`{args.fitted_on}` not among the sets: the exponent not fitted again.)"
+    )
+    command = f"python -m benchmarks.mask_trust --onnx {args.onnx} --sets {' '.join(args.sets)}"
+    command += f" --limit {args.limit}" if args.limit else ""
+    body = f"""
+Each answer carries `mask_iou_estimate`, the IOU its mask is likely to score, from the
+network's own foreground probability p on the working grid: (sum of p on the mask / (mask
+pixels + sum of p off it)) ** {MASK_IOU_EXPONENT}, the exponent fitted on `{args.fitted_on}`;
+below {UNCERTAIN_MASK_IOU} it carries the caveat `mask_uncertain`. {fitted}
+Per set, the estimate beside the IOU measured (means over frames), and the poor masks (IOU
+below {pct(POOR_IOU)} %) that a caveat marks: before, by `few_returns` or `lidar_field_cut`;
+now, by any of the three.
+Model `{args.onnx}`. Regenerate: `{command}`
+
+{sets_table(summaries)}
+
+Every set but `{args.fitted_on}`, the frames binned by their estimate:
+
+{calibration_table(bins)}
+"""
+    print(write_markdown("mask_trust", "Whether an answer says when its mask is poor", body))
+    (DOCS / "mask_trust.json").write_text(
+        json.dumps({"sets": summaries, "calibration": bins, "frames": rows}, indent=1) + "\n"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
