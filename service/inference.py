@@ -209,7 +209,7 @@ class Completed:
             cloud_stride=self.stride,
             outliers_removed=self.outliers_removed,
             uncertain_removed=self.uncertain_removed,
-            mask_iou_estimate=round(self.completion.mask_iou_estimate, 4),
+            mask_iou_estimate=self.completion.mask_iou_estimate,
             caveats=frame_caveats(self.completion, self.returns),
         )
 

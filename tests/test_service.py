@@ -227,7 +227,7 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     assert body["provider"] == "CPUExecutionProvider"
     assert body["intrinsics"] == pytest.approx({"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy})
     assert body["returns"] == np.count_nonzero(s.sparse)
-    assert body["mask_iou_estimate"] == round(direct.mask_iou_estimate, 4)
+    assert body["mask_iou_estimate"] == direct.mask_iou_estimate  # the caveat decides on it
     assert 0.0 < direct.mask_iou_estimate < 1.0  # the tiny model's probability is the gray
     assert set(body["timings"]) == {"decode_ms", "queue_ms", "inference_ms", "encode_ms"}
     assert "inference;dur=" in response.headers["server-timing"]
