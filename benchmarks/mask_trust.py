@@ -18,12 +18,14 @@ import json
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import spearmanr
 from tqdm import tqdm
 
 from benchmarks.common import DOCS, write_markdown
 from sdcnet.caveats import MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU, frame_caveats
 from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.evaluation.scoring import network
+from sdcnet.metrics import frame_metrics
 from sdcnet.pipeline import return_pixels
 from sdcnet.runtime.onnx import OnnxModel
 
@@ -50,24 +52,16 @@ def frame_rows(model: OnnxModel, spec: str, limit: int | None) -> list[dict]:
     for record in tqdm(records, desc=spec, unit="frame", leave=False):
         sample = store.load(record)
         answer = method(sample)
-        truth, mask = sample.depth > 0, answer.mask
-        union = np.count_nonzero(truth | mask)
         returns = len(return_pixels(sample.sparse)[0])
         rows.append(
             {
                 "id": sample.meta["id"],
-                "iou": np.count_nonzero(truth & mask) / union if union else 1.0,
+                "iou": frame_metrics(answer.depth, answer.mask, sample.depth)["IOU"],
                 "estimate": answer.completion.mask_iou_estimate,
                 "caveats": frame_caveats(answer.completion, returns),
             }
         )
     return rows
-
-
-def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman's: the Pearson correlation of the ranks (no ties among continuous values)."""
-    ra, rb = np.argsort(np.argsort(a)), np.argsort(np.argsort(b))
-    return float(np.corrcoef(ra, rb)[0, 1])
 
 
 def set_summary(rows: list[dict]) -> dict:
@@ -82,7 +76,7 @@ def set_summary(rows: list[dict]) -> dict:
         "iou": float(iou.mean()),
         "estimate": float(estimate.mean()),
         "abs_error": float(np.abs(estimate - iou).mean()),
-        "rank_correlation": rank_correlation(estimate, iou),
+        "rank_correlation": float(spearmanr(estimate, iou).statistic),
         "poor": int(poor.sum()),
         "poor_marked_before": int((poor & before).sum()),
         "poor_marked": int((poor & flagged).sum()),

@@ -7,7 +7,7 @@ own foreground probability (``mask_iou_estimate``), and by code (``POST /complet
 (docs/service.md, "Caveats"): fewer than ``FEW_RETURNS`` returns, where the image alone must
 say how far the spacecraft reaches; a LIDAR field that ended across the spacecraft, where what
 lies beyond its edge comes from the image alone (most of the masks' misses on the other
-LIDARs); and a mask whose expected IOU is below ``UNCERTAIN_MASK_IOU``, whatever the reason.
+LIDARs); and a mask whose estimate is below ``UNCERTAIN_MASK_IOU``, whatever the reason.
 """
 
 from __future__ import annotations

@@ -432,8 +432,9 @@ class Completion:
     """The answer on the whole frame, zero outside the spacecraft's crop (``grid.region``):
     depth in metres and sigma (0 off the mask), mask; the foreground probability on the crop,
     the whole frame on demand; on the working grid the surface, mask, image and sigma the
-    normals of the answer's points are taken from (``sdcnet.normals``); and where the LIDAR's
-    field cut the spacecraft, if it did (``sdcnet.caveats``)."""
+    normals of the answer's points are taken from (``sdcnet.normals``); where the LIDAR's
+    field cut the spacecraft, if it did, and the IOU its mask is likely to score
+    (``sdcnet.caveats``)."""
 
     depth: np.ndarray  # (H, W) float32 metres, 0 off the mask
     mask: np.ndarray  # (H, W) bool
