@@ -78,7 +78,14 @@ def cmd_robustness(args: argparse.Namespace) -> int:
 def cmd_pose(args: argparse.Namespace) -> int:
     settings = {f.name: getattr(args, f.name) for f in fields(PoseRun)}
     run_pose(
-        PoseRun(**{**settings, "clouds": tuple(args.clouds), "sequences": tuple(args.sequences)})
+        PoseRun(
+            **{
+                **settings,
+                "clouds": tuple(args.clouds),
+                "sequences": tuple(args.sequences),
+                "suite": tuple(args.suite),
+            }
+        )
     )
     return 0
 
@@ -204,6 +211,13 @@ def add_pose_parser(sub: argparse._SubParsersAction) -> None:
         help="leave out the single frames tracked from perturbed true poses",
     )
     q.add_argument("--sequences", nargs="*", default=[], help="folders made by `sdc-data sequence`")
+    q.add_argument(
+        "--suite",
+        nargs="*",
+        default=[],
+        help="conditions of the robustness suite (its folders, rendered by `sdc-eval "
+        "robustness` with the same --meshes): their frames from scratch",
+    )
     q.add_argument(
         "--gallery",
         type=int,

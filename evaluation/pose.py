@@ -6,11 +6,12 @@ pictures."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import Sample, SampleStore
@@ -53,6 +54,7 @@ class PoseRun:
     clouds: tuple[str, ...] = CLOUDS
     perturbed: bool = True  # also single frames tracked from perturbed true poses
     sequences: tuple[str, ...] = field(default=())  # folders made by `sdc-data sequence`
+    suite: tuple[str, ...] = field(default=())  # conditions of the robustness suite (folders)
     gallery: int = 5  # worst real frames per cloud in failures*.png (0: no pictures)
     redraw: bool = False  # only the pictures, from out/pose_eval.json
     out: str = "docs/pose"
@@ -132,6 +134,12 @@ def pose_results(
         results[f"Sequences {name} ({count} spacecraft), tracked at 10 Hz"] = (
             pose_eval.evaluate_sequences(store, targets, methods)
         )
+    for folder in run.suite:
+        condition = Path(folder).name
+        frames = tqdm(pose_eval.suite_frames(folder, real), desc=condition, unit="frame")
+        results[f"Robustness suite, {condition}: single frames from scratch"] = [
+            replace(r, condition=condition) for r in pose_eval.evaluate_frames(frames, methods)
+        ]
     return results
 
 
@@ -152,7 +160,7 @@ def failure_pictures(
         r
         for frames in results.values()
         for r in frames
-        if r.mode == "scratch" and r.spacecraft in real_names
+        if r.mode == "scratch" and r.spacecraft in real_names and not r.condition
     ]
 
     def load(result: FrameResult) -> tuple[Target, Sample]:
@@ -187,7 +195,7 @@ def gallery_rows(
         depth, mask = method(sample)[:2]
         returns = back_project(sample.sparse, sample.sparse > 0, K)
         points = back_project(depth, mask, K) if cloud != RAW else returns
-        estimate = estimate_pose(target.model, points, returns)
+        estimate = estimate_pose(target.model, points, returns, view=K)
         window = object_crop(sample.mask | mask)
         scale = max(1, round((window[0].stop - window[0].start) / 256 / 2))
         base = gray_bgr(sample.gray)

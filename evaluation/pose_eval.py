@@ -72,6 +72,7 @@ class FrameResult:
     symmetric_translation_m: float = float("nan")
     rotation_sigma_deg: float = float("nan")  # the answer's own (NaN: none)
     translation_sigma_m: float = float("nan")
+    condition: str = ""  # the robustness suite's condition the frame comes from ("" none)
 
     @property
     def success(self) -> bool:
@@ -172,11 +173,11 @@ def perturbed(truth: Pose, rotation_deg: float, translation_m: float, rng) -> Po
 
 
 def _register(
-    target: Target, cloud: np.ndarray, returns: np.ndarray, init: Pose | None
+    target: Target, cloud: np.ndarray, returns: np.ndarray, init: Pose | None, view: Intrinsics
 ) -> tuple[PoseEstimate | None, float]:
     start = time.perf_counter()
     try:
-        estimate = estimate_pose(target.model, cloud, returns, init)
+        estimate = estimate_pose(target.model, cloud, returns, init, view)
     except UnusableCloudError:
         estimate = None
     return estimate, (time.perf_counter() - start) * 1e3
@@ -191,7 +192,7 @@ def evaluate_frames(
         K = Intrinsics(**sample.meta["intrinsics"])
         returns = back_project(sample.sparse, sample.sparse > 0, K)
         for name, cloud, cloud_ms in clouds(sample, methods):
-            estimate, ms = _register(target, cloud, returns, None)
+            estimate, ms = _register(target, cloud, returns, None, K)
             results.append(_result(target, sample, name, "scratch", estimate, (ms, cloud_ms)))
     return results
 
@@ -212,7 +213,7 @@ def evaluate_perturbed(
         }
         for name, cloud, cloud_ms in clouds(sample, methods):
             for mode, init in inits.items():
-                estimate, ms = _register(target, cloud, returns, init)
+                estimate, ms = _register(target, cloud, returns, init, K)
                 results.append(_result(target, sample, name, mode, estimate, (ms, cloud_ms)))
     return results
 
@@ -240,7 +241,7 @@ def evaluate_sequences(
             for name, cloud, cloud_ms in clouds(sample, methods):
                 past = history[name]
                 init = extrapolate(*past[-2:]) if len(past) >= 2 else (past[-1] if past else None)
-                estimate, ms = _register(target, cloud, returns, init)
+                estimate, ms = _register(target, cloud, returns, init, K)
                 mode = "scratch" if init is None else "tracking"
                 results.append(_result(target, sample, name, mode, estimate, (ms, cloud_ms)))
                 if estimate is not None:
@@ -287,6 +288,27 @@ def procedural_models(
             prepare_target(model.name, model.mesh.vertices, model.mesh.faces),
         )
     return config, models
+
+
+def suite_frames(
+    folder: str | Path, real: dict[int, tuple[SpacecraftModel, Target]]
+) -> Iterator[tuple[Target, Sample]]:
+    """The frames of a robustness suite's condition (``sdc-eval robustness``), with their
+    true poses and targets: its procedural models rebuilt from its seed, the rest ``real``'s
+    meshes by index (those the suite was rendered from: a name that differs is an error)."""
+    store = SampleStore(folder)
+    models = int(store.info["models"])
+    ids = sorted({r["model"] for r in store.records if r["model"] < models})
+    _, procedural = procedural_models(Path(folder), ids)
+    for record in store.records:
+        index = record["model"]
+        model, target = procedural[index] if index < models else real[index - models]
+        if target.name != record["model_name"]:
+            raise ValueError(
+                f"{folder}: frame {record['id']} shows {record['model_name']}, but mesh "
+                f"{index - models} of the real meshes given is {target.name}"
+            )
+        yield target, with_pose(store.load(record), model)
 
 
 def split_ids(dataset: Path, split: str, limit: int) -> list[int]:

@@ -208,7 +208,7 @@ def answer_pose(
         returns = back_project(frame.sparse, frame.sparse > 0, done.intrinsics)
     with timer("registration"):
         try:
-            estimate = estimate_pose(target.model, done.points, returns, init)
+            estimate = estimate_pose(target.model, done.points, returns, init, done.intrinsics)
         except UnusableCloudError as exc:
             raise ApiError(
                 422, exc.code, f"the completed cloud cannot be registered to {target.name}: {exc}"

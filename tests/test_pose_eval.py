@@ -7,21 +7,29 @@ import numpy as np
 import pytest
 import trimesh
 
+from sdcnet.camera import Intrinsics
 from sdcnet.evaluation.pose_eval import (
     RAW,
     FrameResult,
     evaluate_frames,
     perturbed,
     single_frames,
+    suite_frames,
     symmetric_errors,
+    truth_of,
 )
 from sdcnet.evaluation.pose_report import report, sigma_coverage, summary
+from sdcnet.evaluation.robustness import render_condition
 from sdcnet.evaluation.scoring import network
+from sdcnet.meshes import read_mesh_folder
+from sdcnet.pointcloud import back_project
+from sdcnet.registration.target import surface_distances
 from sdcnet.rigid import Pose, axis_angle, pose_errors
 from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.service.settings import shipped_model_path
-from sdcnet.targets import prepare_target
+from sdcnet.targets import load_target, prepare_target
 from sdcnet.training.data.generate import GenerateConfig, build_spacecraft
+from tests.support.targets import probe_mesh, write_targets
 
 
 def _frame(rotation_deg: float, translation_m: float, cloud: str = "completed", **kw):
@@ -126,3 +134,26 @@ def test_the_shipped_models_cloud_gives_the_pose_of_a_rendered_frame():
     completed = results["completed"]
     assert completed.success, completed
     assert completed.rotation_deg < 1 and completed.translation_m < 0.1
+
+
+def test_a_robustness_conditions_frames_come_with_their_true_poses_and_targets(tmp_path):
+    """``sdc-eval pose --suite``: each docking frame (procedural models of the test split, a
+    user's mesh after them) with the target it shows, its returns on that target's surface at
+    the frame's true pose; the suite rendered from other meshes is refused."""
+    meshes = read_mesh_folder(write_targets(tmp_path / "meshes", {"probe": (probe_mesh(), None)}))
+    render_condition("docking", tmp_path, meshes, views=1, seed=0, workers=1, models=6)
+    probe = build_spacecraft(GenerateConfig(models=0, meshes=meshes), 0)
+    real = {0: (probe, load_target(meshes[0]))}  # the file's frame, as the service's
+    frames = list(suite_frames(tmp_path / "docking", real))
+    assert "probe" in [target.name for target, _ in frames] and len(frames) >= 2
+    for target, sample in frames:
+        assert target.name == sample.meta["model_name"]
+        K = Intrinsics(**sample.meta["intrinsics"])
+        returns = back_project(sample.sparse, sample.sparse > 0, K)
+        if len(returns):
+            noise = sample.meta["lidar"]["range_noise_m"]
+            on = surface_distances(target.model, returns, truth_of(sample))
+            assert np.median(on) < 2 * noise + 0.01, sample.meta["id"]
+    other = prepare_target("other", probe.mesh.vertices, probe.mesh.faces)
+    with pytest.raises(ValueError, match="shows probe"):
+        list(suite_frames(tmp_path / "docking", {0: (probe, other)}))

@@ -8,6 +8,7 @@ import pytest
 import small_gicp
 import trimesh
 
+from sdcnet.camera import Intrinsics
 from sdcnet.registration import (
     DEFAULT_CONFIG,
     REASONS,
@@ -18,6 +19,7 @@ from sdcnet.registration import (
     estimate_pose,
     judge,
 )
+from sdcnet.registration.observed import consistency, framed_by, observe
 from sdcnet.rigid import (
     Pose,
     axis_angle,
@@ -84,6 +86,40 @@ def test_tracking_refines_a_nearby_pose_and_falls_back_when_lost(spacecraft):
     recovered = estimate_pose(model, cloud, returns=cloud, init=lost)
     assert not recovered.tracked and recovered.hypotheses > 1
     assert pose_errors(recovered.pose, truth)[0] < 0.1
+
+
+def test_a_target_the_camera_frames_only_in_part_is_scored_and_found_on_that_part(spacecraft):
+    """At 4.5 m a 60 degree camera of 512 x 512 frames a quarter of the 6.3 m probe's visible
+    surface: scored on the whole target, even the true pose explains the cloud poorly and the
+    search ends turned 180 degrees; given the camera, the truth is found and trusted."""
+    mesh, model = spacecraft
+    view = Intrinsics(443.0, 443.0, 255.5, 255.5, 512, 512)
+    truth = Pose(axis_angle([0.2, 1.0, -0.3], 1.1), np.array([2.0, -0.5, 4.5]))
+    seen = visible_samples(mesh, truth, seed=2, cell=0.01)
+    cloud = seen[framed_by(seen, view)]
+    assert 0.15 < len(cloud) / len(seen) < 0.35
+    unbounded = consistency(model, truth, observe(cloud, model))
+    framed = consistency(model, truth, observe(cloud, model, view))
+    assert framed > 0.8 and framed - unbounded > 0.3
+    estimate = estimate_pose(model, cloud, returns=cloud[::10], view=view)
+    rotation_deg, translation_m = pose_errors(estimate.pose, truth)
+    assert rotation_deg < 0.1 and translation_m < 0.01
+    assert estimate.verdict == "reliable"
+
+
+def test_the_camera_frames_what_lies_ahead_of_it_inside_its_image():
+    view = Intrinsics(100.0, 100.0, 49.5, 49.5, 100, 100)
+    points = np.array(
+        [
+            [0.0, 0.0, 10.0],  # the centre
+            [4.9, 4.9, 10.0],  # the last pixel's centre, (99, 99)
+            [5.1, 0.0, 10.0],  # right of the image
+            [0.0, -5.1, 10.0],  # above it
+            [0.0, 0.0, -10.0],  # behind the camera
+        ]
+    )
+    assert framed_by(points, view).tolist() == [True, True, False, False, False]
+    assert framed_by(points.reshape(5, 1, 3), view).shape == (5, 1)
 
 
 @pytest.mark.parametrize(

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sdcnet.camera import Intrinsics
 from sdcnet.registration.choice import choose_searched, choose_tracked
 from sdcnet.registration.config import RegistrationConfig
 from sdcnet.registration.covariance import covariance
@@ -109,12 +110,15 @@ def estimate_pose(
     cloud: np.ndarray,
     returns: np.ndarray | None = None,
     init: Pose | None = None,
+    view: Intrinsics | None = None,
 ) -> PoseEstimate:
     """The target's pose from ``cloud`` (N, 3) camera-frame points, metres (the completed
     cloud, or any cloud of the target's visible side), refined on ``returns`` (M, 3) (the
     LIDAR's own points) when given; from ``init`` when given (tracking), else from scratch.
-    Points that are not finite are left out. Raises ``UnusableCloudError`` when the cloud is
-    too small, or too large, to register."""
+    ``view``: the camera that saw the cloud (its intrinsics and image size, pixels), so that
+    poses are scored on what it could see (``sdcnet.registration.observed``); without it, on
+    the whole target. Points that are not finite are left out. Raises ``UnusableCloudError``
+    when the cloud is too small, or too large, to register."""
     config = model.config
     timings: dict[str, float] = {}
     started, cpu_started = time.perf_counter(), time.thread_time()
@@ -131,7 +135,7 @@ def estimate_pose(
             f"the cloud spans {span:.3g} m, more than {config.max_span_of_longest:g} times the "
             f"target's {model.longest_m:.3g} m (wrong intrinsics, or not this target?)",
         )
-    observed = observe(cloud, model)
+    observed = observe(cloud, model, view)
     if observed.cloud.size() < config.min_points:
         raise UnusableCloudError(
             "too_few_points",

@@ -5,18 +5,23 @@ line of sight), and the consistency that scores a pose against it.
    cloud as seen from the camera: on a grid across the line of sight, the cells where both
    hold a surface at the same depth, over the cells where either does (the target's cells
    count only outside the observed footprint, so a sparse cloud is not punished for its
-   gaps).
+   gaps). When the camera's ``view`` is known, the target is drawn only where the camera
+   could see it: in front of it and inside its image. A spacecraft that overflows the frame
+   at docking range, or whose parts lie behind the camera, is then not scored down for the
+   parts no camera could show (at the true pose of a 9 m docking frame the whole target
+   scored 0.26, the part in the image 0.90).
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 import small_gicp
 
+from sdcnet.camera import Intrinsics
 from sdcnet.registration.target import TargetModel, sight_basis
 from sdcnet.rigid import Pose
 
@@ -35,6 +40,8 @@ class Observed:
     footprint: np.ndarray  # (H, W) bool: the observed cells, grown over the cloud's gaps
     tolerance: float  # depths closer than this agree, metres
     coarse_voxel: float  # metres, of ``coarse``
+    view: Intrinsics | None = None  # the camera the cloud was seen by (None: unbounded)
+    at_border: bool = False  # the cloud reaches the edge of the view's image
 
     @functools.cached_property
     def coarse(self) -> small_gicp.PointCloud:
@@ -57,7 +64,9 @@ def _grid_depth(uvd: np.ndarray, origin: np.ndarray, cell: float, shape) -> np.n
     return depth
 
 
-def observe(cloud: np.ndarray, model: TargetModel) -> Observed:
+def observe(cloud: np.ndarray, model: TargetModel, view: Intrinsics | None = None) -> Observed:
+    """``cloud`` (N, 3, camera frame, metres) prepared for scoring poses against it; ``view``:
+    the camera (pixels) whose image bounds what the cloud could show, when known."""
     config = model.config
     L = model.longest_m
     centroid = np.mean(cloud, axis=0, dtype=np.float64)
@@ -96,13 +105,49 @@ def observe(cloud: np.ndarray, model: TargetModel) -> Observed:
         footprint,
         2 * cell,
         L * config.coarse_voxel_of_longest,
+        view,
+        view is not None and _reaches_border(points, view),
     )
+
+
+#: A cloud with a point within this many pixels of the image's edge reaches it.
+BORDER_PX = 2
+
+
+def _reaches_border(points: np.ndarray, view: Intrinsics) -> bool:
+    """Whether any of (N, 3) camera-frame ``points`` projects within ``BORDER_PX`` of the edge
+    of ``view``'s image: the camera may frame only part of the target."""
+    inner = replace(
+        view,
+        cx=view.cx - BORDER_PX,
+        cy=view.cy - BORDER_PX,
+        width=view.width - 2 * BORDER_PX,
+        height=view.height - 2 * BORDER_PX,
+    )
+    return not bool(np.all(framed_by(points, inner)))
+
+
+def framed_by(points: np.ndarray, view: Intrinsics) -> np.ndarray:
+    """Bool (...): which of the camera-frame ``points`` (..., 3), metres, the camera ``view``
+    frames: in front of it and projected inside its image."""
+    z = points[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = view.fx * points[..., 0] / z + view.cx
+        v = view.fy * points[..., 1] / z + view.cy
+    return (z > 0) & (u >= -0.5) & (u < view.width - 0.5) & (v >= -0.5) & (v < view.height - 0.5)
+
+
+def in_view(points: np.ndarray, view: Intrinsics | None) -> np.ndarray:
+    """The rows of (N, 3) camera-frame ``points`` the camera ``view`` frames (all of them when
+    ``view`` is None)."""
+    return points if view is None else points[framed_by(points, view)]
 
 
 def consistency(model: TargetModel, pose: Pose, observed: Observed) -> float:
     """Share of the cells, where either the target at ``pose`` or the cloud shows a surface,
-    in which both do at the same depth (step 3 of the module docstring)."""
-    uvd = pose.apply(model.render_points) @ observed.basis.T
+    in which both do at the same depth (step 3 of the module docstring); the target drawn
+    only where ``observed.view`` sees."""
+    uvd = in_view(pose.apply(model.render_points), observed.view) @ observed.basis.T
     drawn = _grid_depth(uvd, observed.origin, observed.cell, observed.depth.shape)
     seen = np.isfinite(observed.depth)
     has = np.isfinite(drawn)

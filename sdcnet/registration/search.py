@@ -4,7 +4,9 @@
    hypothesis is a view direction of the target (``views`` on a Fibonacci sphere) and a roll
    about the line of sight (``rolls`` steps). Its translation puts the centroid of what the
    target shows from that view (precomputed by a z-buffer of the surface samples: the cloud
-   sees one side, a partial view) on the observed centroid. Each of the views x rolls
+   sees one side, a partial view) on the observed centroid; when the cloud reaches the edge of
+   the camera's image, also on the centroid of the part of that side the camera frames
+   (``_framed_centroids``), and the better placed of the two is kept. Each of the views x rolls
    hypotheses is scored at once, vectorised, by the mean truncated distance of a subset of
    observed points to the target's surface, read from the distance field.
 2. The ``hypotheses`` best, at least ``separation_deg`` apart, are refined by VGICP
@@ -29,7 +31,7 @@ import time
 
 import numpy as np
 
-from sdcnet.registration.observed import Observed, consistency, observe
+from sdcnet.registration.observed import Observed, consistency, framed_by, observe
 from sdcnet.registration.refine import Hypothesis, refine_dense
 from sdcnet.registration.target import TargetModel, sight_basis
 from sdcnet.rigid import Pose, axis_angle, rotation_angle_deg
@@ -54,6 +56,34 @@ def _rotations_onto(vectors: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def _framed_centroids(
+    model: TargetModel, rotations: np.ndarray, centroids: np.ndarray, observed: Observed
+) -> np.ndarray:
+    """(H, 3) target-frame points to put on the observed centroid, one per hypothesis of
+    ``rotations`` (H, 3, 3): the centroid of the visible points the camera
+    ``observed.view`` frames once the hypothesis' ``centroids`` (H, 3) is on the observed
+    centroid, found again from the placement that gives (``FRAMING_STEPS`` times). The cloud
+    of a target that overflows the image is centred on the framed part, not on the whole
+    visible side: at a docking frame's 8 m, metres apart."""
+    samples = np.repeat(model.visible_samples, model.config.rolls, axis=0)  # (H, S, 3)
+    turn = np.transpose(rotations, (0, 2, 1)).astype(np.float32)
+    centroids = centroids.astype(np.float32)
+    for _ in range(FRAMING_STEPS):
+        # camera-frame samples: R (x - centroid) + observed centroid
+        points = np.matmul(samples - centroids[:, None], turn)
+        points += observed.centroid.astype(np.float32)
+        framed = framed_by(points, observed.view)
+        count = framed.sum(axis=1)
+        seen = count > 0  # a hypothesis that frames nothing keeps its centroid
+        mean = (samples * framed[..., None]).sum(axis=1)[seen] / count[seen, None]
+        centroids[seen] = mean
+    return centroids.astype(np.float64)
+
+
+#: Rounds of ``_framed_centroids``: the framed part moves with the centroid put on the cloud.
+FRAMING_STEPS = 2
+
+
 def _coarse_search(model: TargetModel, observed: Observed, count: int) -> list[Pose]:
     """The ``count`` best distinct coarse hypotheses, best first (step 1 of the module
     docstring)."""
@@ -68,13 +98,21 @@ def _coarse_search(model: TargetModel, observed: Observed, count: int) -> list[P
     # A point p's target-frame position is R^T (p - c) + visible centroid; as a row vector
     # (p - c)^T R + centroid^T, read in the distance field's grid coordinates.
     field = model.field
-    centroids = np.repeat(model.visible_centroids, config.rolls, axis=0)
-    offsets = ((centroids - field.origin) / field.cell).astype(np.float32)
     scaled = (rotations / field.cell).astype(np.float32)
-    cells = np.matmul((subset - observed.centroid).astype(np.float32)[None], scaled)
-    cells += offsets[:, None, :]
+    turned = np.matmul((subset - observed.centroid).astype(np.float32)[None], scaled)
     truncation = config.coarse_truncation_of_longest * model.longest_m
-    score = np.minimum(field.at_cells(cells), truncation).mean(axis=1)
+
+    def scores(centroids: np.ndarray) -> np.ndarray:
+        cells = turned + ((centroids - field.origin) / field.cell).astype(np.float32)[:, None]
+        return np.minimum(field.at_cells(cells), truncation).mean(axis=1)
+
+    centroids = np.repeat(model.visible_centroids, config.rolls, axis=0)
+    score = scores(centroids)
+    if observed.at_border:  # the camera may frame part of the target: the better placement
+        framed = _framed_centroids(model, rotations, centroids, observed)
+        framed_score = scores(framed)
+        better = framed_score < score
+        centroids[better], score[better] = framed[better], framed_score[better]
     chosen: list[Pose] = []
     for h in np.argsort(score):
         R = rotations[h]
@@ -121,7 +159,7 @@ def seeded_by_returns(
     that step 4 weighs them beside the cloud's own (see the module docstring); none when the
     returns fill too few voxels to search on."""
     mark = time.perf_counter()
-    on_returns = observe(returns, model)
+    on_returns = observe(returns, model, observed.view)
     if on_returns.cloud.size() < model.config.min_points:
         return []
     found = sorted(search(model, on_returns, {}), key=lambda h: -h.consistency)

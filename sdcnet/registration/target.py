@@ -32,6 +32,15 @@ def sight_basis(direction: np.ndarray) -> np.ndarray:
     return np.stack([a, np.cross(direction, a), direction])
 
 
+#: Visible points kept per view direction for the coarse search's framing (``visible_samples``).
+VISIBLE_SAMPLES = 128
+
+
+def _evenly(points: np.ndarray, count: int) -> np.ndarray:
+    """``count`` rows of ``points`` evenly spread over them (repeated when there are fewer)."""
+    return points[np.linspace(0, len(points) - 1, count).round().astype(np.int64)]
+
+
 def _zbuffer(points: np.ndarray, basis: np.ndarray, cell: float) -> np.ndarray:
     """Indices of the points nearest the viewer, one per ``cell``-sized square across the
     line of sight ``basis[2]`` (the viewer looks along it, from far behind)."""
@@ -136,8 +145,12 @@ class TargetModel:
         self.field = DistanceField.build(self.surface, L * config.field_cell_of_longest)
         self.views = fibonacci_sphere(config.views)
         thinned = self.surface[:: max(1, len(self.surface) // 10_000)]
-        self.visible_centroids = np.array(
-            [thinned[_zbuffer(thinned, sight_basis(w), L / 64)].mean(axis=0) for w in self.views]
+        visible = [thinned[_zbuffer(thinned, sight_basis(w), L / 64)] for w in self.views]
+        self.visible_centroids = np.array([v.mean(axis=0) for v in visible])
+        # (views, VISIBLE_SAMPLES, 3): an even share of each view's visible points, to find
+        # the part a camera frames (``sdcnet.registration.search``)
+        self.visible_samples = np.stack([_evenly(v, VISIBLE_SAMPLES) for v in visible]).astype(
+            np.float32
         )
         render = small_gicp.voxelgrid_sampling(
             small_gicp.PointCloud(self.surface), L * config.grid_cell_of_longest / 2.5
