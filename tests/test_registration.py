@@ -2,6 +2,7 @@
 poses and their JSON form."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -105,6 +106,22 @@ def test_a_target_the_camera_frames_only_in_part_is_scored_and_found_on_that_par
     rotation_deg, translation_m = pose_errors(estimate.pose, truth)
     assert rotation_deg < 0.1 and translation_m < 0.01
     assert estimate.verdict == "reliable"
+
+
+def test_thousands_of_returns_are_refined_on_a_bounded_share_to_the_same_pose(spacecraft):
+    """A close target's returns (here 14,000 with 1 cm of noise, every second of them kept:
+    ``max_refine_returns``) all score the candidates, but the ICP on them moves at most
+    ``max_icp_returns``: 64 still land within a few millimetres."""
+    mesh, _ = spacecraft
+    model = TargetModel(mesh.vertices, mesh.faces, replace(DEFAULT_CONFIG, max_icp_returns=64))
+    truth = Pose(axis_angle([0.3, -1.0, 0.4], 2.2), np.array([0.8, -0.5, 120.0]))
+    cloud = visible_samples(mesh, truth, seed=1)
+    returns = cloud + np.random.default_rng(0).normal(0, 0.01, cloud.shape)
+    estimate = estimate_pose(model, cloud, returns)
+    rotation_deg, translation_m = pose_errors(estimate.pose, truth)
+    assert len(returns) > 10_000 and estimate.returns == len(returns[::2])
+    assert rotation_deg < 0.2 and translation_m < 0.01
+    assert estimate.verdict == "reliable" and estimate.returns_rmse_m < 0.015
 
 
 def test_the_camera_frames_what_lies_ahead_of_it_inside_its_image():

@@ -55,7 +55,9 @@ def _refine_on_returns(
     """Each candidate refined by GICP on the LIDAR returns and scored by their mean distance
     to the target's surface, truncated (the returns' noise is a few centimetres, the
     completed cloud's decimetres: they tell near-symmetric poses apart); best first. Close
-    returns (a near target: thousands) are thinned to one per ``returns_voxel_of_longest``."""
+    returns (a near target: thousands) are thinned to one per ``returns_voxel_of_longest``,
+    and the ICP moves at most ``max_icp_returns`` of those (evenly): at docking range 5,000
+    voxels made each candidate's refinement 250-400 ms; every return still scores it."""
     config = model.config
     source, _ = small_gicp.preprocess_points(
         returns,
@@ -64,6 +66,7 @@ def _refine_on_returns(
     )
     gate = config.returns_max_distance_m
     thinned = np.asarray(source.points())[:, :3]
+    thinned = thinned[:: -(-len(thinned) // config.max_icp_returns)]
     for h in candidates:
         # Only the returns near the target at this pose: far ones (another object, or a wrong
         # candidate) cannot match, and the k-d tree is slow to say so.
