@@ -62,9 +62,9 @@ def _framed_centroids(
     """(H, 3) target-frame points to put on the observed centroid, one per hypothesis of
     ``rotations`` (H, 3, 3): the centroid of the visible points the camera
     ``observed.view`` frames once the hypothesis' ``centroids`` (H, 3) is on the observed
-    centroid, found again from the placement that gives (``FRAMING_STEPS`` times). The cloud
+    centroid, found again from the placement that gives (``FRAMING_STEPS`` times): the cloud
     of a target that overflows the image is centred on the framed part, not on the whole
-    visible side: at a docking frame's 8 m, metres apart."""
+    visible side."""
     samples = np.repeat(model.visible_samples, model.config.rolls, axis=0)  # (H, S, 3)
     turn = np.transpose(rotations, (0, 2, 1)).astype(np.float32)
     centroids = centroids.astype(np.float32)
