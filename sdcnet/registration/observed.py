@@ -8,7 +8,7 @@ line of sight), and the consistency that scores a pose against it.
    gaps). When the camera's ``view`` is known, the target is drawn only where the camera
    could see it: in front of it and inside its image. A spacecraft that overflows the frame
    at docking range, or whose parts lie behind the camera, is then not scored down for the
-   parts no camera could show (at the true pose of a 9 m docking frame the whole target
+   parts no camera could show (at the true pose of an 11.7 m docking frame the whole target
    scored 0.26, the part in the image 0.90).
 """
 
@@ -130,11 +130,10 @@ def _reaches_border(points: np.ndarray, view: Intrinsics) -> bool:
 def framed_by(points: np.ndarray, view: Intrinsics) -> np.ndarray:
     """Bool (...): which of the camera-frame ``points`` (..., 3), metres, the camera ``view``
     frames: in front of it and projected inside its image."""
-    z = points[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = view.fx * points[..., 0] / z + view.cx
-        v = view.fy * points[..., 1] / z + view.cy
-    return (z > 0) & (u >= -0.5) & (u < view.width - 0.5) & (v >= -0.5) & (v < view.height - 0.5)
+        u, v = view.project(points)
+    inside = (u >= -0.5) & (u < view.width - 0.5) & (v >= -0.5) & (v < view.height - 0.5)
+    return (points[..., 2] > 0) & inside
 
 
 def in_view(points: np.ndarray, view: Intrinsics | None) -> np.ndarray:
