@@ -124,6 +124,26 @@ def test_thousands_of_returns_are_refined_on_a_bounded_share_to_the_same_pose(sp
     assert estimate.verdict == "reliable" and estimate.returns_rmse_m < 0.015
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_candidates_ranked_on_a_few_returns_leave_the_answer_polished_on_more(spacecraft, seed):
+    """Each candidate's ICP moves ``max_icp_returns`` returns (here 16, with 2 cm of noise):
+    enough to rank the candidates, not to place the answer; its last refinement on
+    ``polish_icp_returns`` does."""
+    mesh, _ = spacecraft
+    truth = Pose(axis_angle([0.3, -1.0, 0.4], 2.2 + seed), np.array([0.8, -0.5, 120.0]))
+    cloud = visible_samples(mesh, truth, seed=1)
+    returns = cloud + np.random.default_rng(seed).normal(0, 0.02, cloud.shape)
+    errors = {}
+    for polish in (16, DEFAULT_CONFIG.polish_icp_returns):
+        config = replace(DEFAULT_CONFIG, max_icp_returns=16, polish_icp_returns=polish)
+        estimate = estimate_pose(TargetModel(mesh.vertices, mesh.faces, config), cloud, returns)
+        errors[polish] = pose_errors(estimate.pose, truth)
+        assert estimate.verdict == "reliable"
+    rotation_deg, translation_m = errors[DEFAULT_CONFIG.polish_icp_returns]
+    assert rotation_deg < 0.4 and translation_m < 0.005
+    assert errors[16][0] > 0.9 and errors[16][1] > 0.01  # not polished: the candidates' own
+
+
 def test_the_camera_frames_what_lies_ahead_of_it_inside_its_image():
     view = Intrinsics(100.0, 100.0, 49.5, 49.5, 100, 100)
     points = np.array(

@@ -5,6 +5,7 @@
    consistency by point-to-plane ICP; the most consistent stays the answer unless another
    fits the returns clearly better. Those that fit about as well, far from it in rotation,
    make the answer ``ambiguous`` (a symmetric target) and are listed as alternatives.
+   The answer is then refined once more on more of the returns (``polished``).
 
 When tracking held, the tracked pose is refined on the returns, and so is the init itself (the
 cloud's refinement can slide a few decimetres along a large surface, the returns' cannot); the
@@ -43,31 +44,47 @@ def _explains_as_well(
     config = model.config
     if returns is None:
         return other.consistency >= best.consistency - config.ambiguity_margin
-    gate = config.returns_max_distance_m / 3
-    error = float(np.mean(np.minimum(surface_distances(model, returns, other.pose), gate)))
-    other.returns_error_m = error
-    return error <= config.returns_ambiguity_ratio * best.returns_error_m
+    other.returns_error_m = _returns_error(model, returns, other.pose)
+    return other.returns_error_m <= config.returns_ambiguity_ratio * best.returns_error_m
+
+
+def _icp_share(model: TargetModel, returns: np.ndarray, count: int) -> np.ndarray:
+    """The returns an ICP moves: thinned to one per ``returns_voxel_of_longest`` (close
+    returns, a near target: thousands), then at most ``count`` of those, evenly spaced."""
+    voxels, _ = small_gicp.preprocess_points(
+        returns,
+        downsampling_resolution=model.longest_m * model.config.returns_voxel_of_longest,
+        num_neighbors=6,
+    )
+    points = np.asarray(voxels.points())[:, :3]
+    return points[:: -(-len(points) // count)]
+
+
+def _returns_error(model: TargetModel, returns: np.ndarray, pose: Pose) -> float:
+    """The returns' mean distance to the target at ``pose``, truncated at a third of the
+    correspondence gate (metres): a wrong pose's far returns count the same."""
+    gate = model.config.returns_max_distance_m / 3
+    return float(np.mean(np.minimum(surface_distances(model, returns, pose), gate)))
 
 
 def _refine_on_returns(
     model: TargetModel, candidates: list[Hypothesis], returns: np.ndarray, reach: float = 1.0
 ) -> list[Hypothesis]:
-    """Each candidate refined by GICP on the LIDAR returns and scored by their mean distance
-    to the target's surface, truncated (the returns' noise is a few centimetres, the
-    completed cloud's decimetres: they tell near-symmetric poses apart); best first. Close
-    returns (a near target: thousands) are thinned to one per ``returns_voxel_of_longest``,
-    and the ICP moves at most ``max_icp_returns`` of those (evenly): at docking range 5,000
-    voxels made each candidate's refinement 250-400 ms; every return still scores it."""
+    """Each candidate refined by point-to-plane ICP on the LIDAR returns and scored by their
+    mean distance to the target's surface, truncated (the returns' noise is a few
+    centimetres, the completed cloud's decimetres: they tell near-symmetric poses apart);
+    best first. The ICP moves at most ``max_icp_returns`` of them: enough to rank the
+    candidates, and their ICP is most of a close target's registration time; every return
+    still scores them, and the answer is polished on more (``polished``). A candidate refined
+    on them already (the search ran again on the returns and found it again) keeps its
+    refinement."""
     config = model.config
-    source, _ = small_gicp.preprocess_points(
-        returns,
-        downsampling_resolution=model.longest_m * config.returns_voxel_of_longest,
-        num_neighbors=6,
-    )
     gate = config.returns_max_distance_m
-    thinned = np.asarray(source.points())[:, :3]
-    thinned = thinned[:: -(-len(thinned) // config.max_icp_returns)]
+    thinned = _icp_share(model, returns, config.max_icp_returns)
     for h in candidates:
+        if h.on_returns:
+            continue
+        h.on_returns = True
         # Only the returns near the target at this pose: far ones (another object, or a wrong
         # candidate) cannot match, and the k-d tree is slow to say so.
         near = model.field.near(h.pose.inverse().apply(thinned))
@@ -78,18 +95,21 @@ def _refine_on_returns(
         pose, _ = gicp(
             model, source, h.pose, (reach * gate,), config.fine_iterations, kind="PLANE_ICP"
         )
-        h.pose, h.result = gicp(
-            model,
-            source,
-            pose,
-            (gate / 3,),
-            config.final_iterations,
-            precise=True,
-            kind="PLANE_ICP",
-        )
-        distances = surface_distances(model, returns, h.pose)
-        h.returns_error_m = float(np.mean(np.minimum(distances, gate / 3)))
+        h.pose, h.result = _precise(model, source, pose)
+        h.returns_error_m = _returns_error(model, returns, h.pose)
     return sorted(candidates, key=lambda h: h.returns_error_m)
+
+
+def _precise(
+    model: TargetModel, source: small_gicp.PointCloud, start: Pose
+) -> tuple[Pose, small_gicp.RegistrationResult]:
+    """Point-to-plane ICP of ``source`` onto the target's dense samples from ``start``,
+    within a third of the returns' gate, until a step moves less than ``final_step_*``."""
+    config = model.config
+    gate = config.returns_max_distance_m / 3
+    return gicp(
+        model, source, start, (gate,), config.final_iterations, precise=True, kind="PLANE_ICP"
+    )
 
 
 #: The init's refinement on the returns starts with a gate this many times wider: a tracker's
@@ -159,8 +179,7 @@ def choose_searched(
         for h in _distinct(ranked, config.alternative_deg)
         if not _same_basin(model, h, best) and h.returns_error_m <= ratio * best.returns_error_m
     ]
-    runner_up = _runner_up(model, best, hypotheses)
-    return _Choice(best, alternatives, runner_up, _returns_rmse(model, returns, best))
+    return _Choice(best, alternatives, _runner_up(model, best, hypotheses))
 
 
 def _same_basin(model: TargetModel, a: Hypothesis, b: Hypothesis) -> bool:
@@ -188,13 +207,26 @@ def choose_tracked(
             best.consistency = consistency(model, best.pose, observed)
     twins = _distinct([best, *mirrored(model, best, observed)], model.config.alternative_deg)
     alternatives = [h for h in twins[1:] if _explains_as_well(model, h, best, returns)]
-    return _Choice(
-        best,
-        alternatives,
-        _runner_up(model, best, twins),
-        None if returns is None else _returns_rmse(model, returns, best),
-    )
+    return _Choice(best, alternatives, _runner_up(model, best, twins))
 
 
-def _returns_rmse(model: TargetModel, returns: np.ndarray, best: Hypothesis) -> float:
-    return surface_fit(model, returns, best.pose, model.config.returns_max_distance_m / 3)[1]
+def polished(model: TargetModel, choice: _Choice, returns: np.ndarray | None) -> _Choice:
+    """The answer refined once more, finely, on up to ``polish_icp_returns`` returns (the
+    candidates were refined on fewer: enough to rank them, not for the last tenth of a
+    degree), kept where the returns fit it at least as well; with the returns' RMS distance
+    to the target at it. Unchanged without returns; not refined again when there are no more
+    returns than the candidates had."""
+    if returns is None:
+        return choice
+    best = choice.best
+    config = model.config
+    share = _icp_share(model, returns, config.polish_icp_returns)
+    near = share[model.field.near(best.pose.inverse().apply(share))]
+    if len(share) > config.max_icp_returns and len(near) >= config.min_points:
+        pose, result = _precise(model, small_gicp.PointCloud(near), best.pose)
+        error = _returns_error(model, returns, pose)
+        if error <= best.returns_error_m:
+            best.pose, best.result, best.returns_error_m = pose, result, error
+    gate = config.returns_max_distance_m / 3
+    choice.returns_rmse_m = surface_fit(model, returns, best.pose, gate)[1]
+    return choice

@@ -25,7 +25,8 @@ class RegistrationConfig:
     max_cloud_points: int = 50_000  # larger clouds are thinned first
     max_input_points: int = 2**20  # a cloud given is thinned to this before anything else
     max_refine_returns: int = 8192  # LIDAR returns refined on, at most: more are thinned
-    max_icp_returns: int = 1024  # ... of which the ICP on them moves at most this many
+    max_icp_returns: int = 512  # ... of which each candidate's ICP moves at most this many,
+    polish_icp_returns: int = 2048  # ... and the answer's last refinement this many
     field_cell_of_longest: float = 1 / 48  # distance field cell
     coarse_truncation_of_longest: float = 0.05  # distances above it score the same
     grid_cell_of_longest: float = 1 / 40  # cell of the consistency grid

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sdcnet.camera import Intrinsics
-from sdcnet.registration.choice import choose_searched, choose_tracked
+from sdcnet.registration.choice import choose_searched, choose_tracked, polished
 from sdcnet.registration.config import RegistrationConfig
 from sdcnet.registration.covariance import covariance
 from sdcnet.registration.observed import observe
@@ -171,6 +171,7 @@ def estimate_pose(
             searched.sort(key=lambda h: -h.consistency)
             choice = choose_searched(model, searched, returns, prior=refined)
         hypotheses = len(searched)
+    choice = polished(model, choice, returns)
     timings["choice_ms"] = (time.perf_counter() - mark) * 1e3
     best = choice.best
     if not np.all(np.isfinite(best.pose.matrix())):

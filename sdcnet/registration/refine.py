@@ -21,6 +21,7 @@ class Hypothesis:
     consistency: float = 0.0  # 0..1, step 3: ``sdcnet.registration.observed``
     result: small_gicp.RegistrationResult | None = None
     returns_error_m: float = float("nan")  # mean truncated distance of the returns
+    on_returns: bool = False  # its pose was refined on the LIDAR returns (once is enough)
 
 
 def gicp(
