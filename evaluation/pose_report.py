@@ -36,7 +36,10 @@ def summary(results: list[FrameResult]) -> dict[str, float]:
         "reliable_but_wrong": sum(r.reliable_but_wrong for r in results),
         "among_answers_pct": 100 * float(np.mean([r.among_answers for r in results])),
         "ambiguous_pct": 100 * float(np.mean([r.ambiguous for r in results])),
-        "registration_p50_ms": float(np.median([r.registration_ms for r in results])),
+        **{
+            f"registration_{name}_ms": float(np.percentile([r.registration_ms for r in results], q))
+            for name, q in (("p50", 50), ("p95", 95), ("max", 100))
+        },
         "cloud_p50_ms": float(np.median([r.cloud_ms for r in results])),
     }
 
@@ -46,8 +49,8 @@ def table(rows: dict[str, dict[str, float]]) -> str:
     lines = [
         "| | frames | rot. mean deg | rot. median | transl. mean m | median | % of range | "
         "success (2 deg, 0.2 m) | modulo symmetry | truth among answers | ambiguous | "
-        "verdict reliable / ambiguous / unreliable | reliable but wrong | registration p50 ms | "
-        "cloud p50 ms |",
+        "verdict reliable / ambiguous / unreliable | reliable but wrong | "
+        "registration p50 / p95 / max ms | cloud p50 ms |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, s in rows.items():
@@ -59,7 +62,8 @@ def table(rows: dict[str, dict[str, float]]) -> str:
             f"{s['among_answers_pct']:.1f} % | {s['ambiguous_pct']:.1f} % | "
             f"{s['verdict_reliable_pct']:.0f} / {s['verdict_ambiguous_pct']:.0f} / "
             f"{s['verdict_unreliable_pct']:.0f} % | "
-            f"{s['reliable_but_wrong']} | {s['registration_p50_ms']:.1f} | "
+            f"{s['reliable_but_wrong']} | {s['registration_p50_ms']:.1f} / "
+            f"{s['registration_p95_ms']:.1f} / {s['registration_max_ms']:.1f} | "
             f"{s['cloud_p50_ms']:.1f} |"
         )
     return "\n".join(lines)

@@ -65,3 +65,35 @@ def test_sequences_carry_the_pose_of_every_frame_in_the_mesh_files_frame(tmp_pat
     assert abs(step - 1.5) < 0.01  # 15 deg/s at 10 Hz
     tumble = by_sequence["tumble"]
     assert 0.5 < rotation_angle_deg(tumble[0][1].R, tumble[1][1].R) < 1.5  # ~10 deg/s
+
+
+def test_a_docking_sequence_closes_in_seen_by_one_docking_camera_and_lidar(tmp_path):
+    mesh = trimesh.creation.box((4.0, 1.5, 1.0))
+    folder = tmp_path / "meshes"
+    folder.mkdir()
+    mesh.export(folder / "craft.stl")
+    (folder / "manifest.json").write_text(json.dumps([{"file": "craft.stl", "longest_m": 4.0}]))
+    out = tmp_path / "seq"
+    args = ["sequence", "--out", str(out), "--meshes", str(folder), "--frames", "3"]
+    assert sdc_data([*args, "--trajectories", "docking", "--quiet"]) == 0
+    store = SampleStore(out)
+    records = sorted(store.records, key=lambda r: r["frame"])
+    assert [r["trajectory"] for r in records] == ["docking"] * 3
+    # 12 m -> 4 m (the box's bounding sphere, 2.2 m, plus the metre's clearance is nearer)
+    assert [r["distance_m"] for r in records] == [12.0, 8.0, 4.0]
+    cameras = {json.dumps(r["intrinsics"], sort_keys=True) for r in records}
+    assert len(cameras) == 1  # one camera for the whole sequence ...
+    K = Intrinsics(**records[0]["intrinsics"])
+    hfov = np.degrees(2 * np.arctan(K.width / 2 / K.fx))
+    assert 40.0 <= hfov <= 60.0  # ... the docking world's, not the paper's 5.7 deg
+    assert records[0]["lidar"]["kind"] in ("flash", "scanning")  # an array or a grid
+    assert len({r["lidar"]["kind"] for r in records}) == 1
+    surface, _ = trimesh.sample.sample_surface(mesh, 50_000, seed=0)
+    tree = small_gicp.KdTree(np.asarray(surface, dtype=np.float64))
+    for record in records:
+        sample = store.load(record)
+        pose = Pose(np.array(record["pose"]["R"]), np.array(record["pose"]["t"]))
+        assert record["returns"] > 100, record["id"]  # metres away: hundreds of returns
+        returns = pose.inverse().apply(back_project(sample.sparse, sample.sparse > 0, K))
+        _, squared = tree.batch_nearest_neighbor_search(returns.astype(np.float64))
+        assert np.median(np.sqrt(squared)) < 0.05, record["id"]  # on the box, within noise

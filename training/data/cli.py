@@ -27,7 +27,12 @@ from sdcnet.training.data.generate import (
 )
 from sdcnet.training.data.preview import preview
 from sdcnet.training.data.scene import SceneConfig
-from sdcnet.training.data.sequence import TRAJECTORIES, SequenceConfig, write_sequences
+from sdcnet.training.data.sequence import (
+    DEFAULT_TRAJECTORIES,
+    TRAJECTORIES,
+    SequenceConfig,
+    write_sequences,
+)
 from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file
 
 #: Model ids of ``sdc-data sequence --meshes`` files: after any procedural dataset's.
@@ -293,7 +298,13 @@ def parser() -> argparse.ArgumentParser:
     q.add_argument("--meshes", type=Path, help="folder of your meshes (manifest.json)")
     q.add_argument("--mesh-split", default="real", help="split name of the folder's meshes")
     q.add_argument("--frames", type=int, default=30, help="frames per trajectory (10 Hz)")
-    q.add_argument("--trajectories", nargs="+", choices=TRAJECTORIES, default=list(TRAJECTORIES))
+    q.add_argument(
+        "--trajectories",
+        nargs="+",
+        choices=TRAJECTORIES,
+        default=list(DEFAULT_TRAJECTORIES),
+        help="default: the paper camera's three; docking: 12 -> 4 m, a docking camera and LIDAR",
+    )
     q.add_argument("--size", type=int, default=1024, help="image side in pixels (same optics)")
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -1,7 +1,7 @@
 """Sequences at the LIDAR's pace: trajectories of a spacecraft rendered at 10 Hz, with the
 ground-truth pose of every frame, for pose tracking (``sdc-data sequence``).
 
-Three trajectories, each ``frames`` long at ``rate_hz`` (time runs faster than a real
+Four trajectories, each ``frames`` long at ``rate_hz`` (time runs faster than a real
 rendezvous: a 3 s approach covers 250 -> 50 m):
 
 - ``approach``: the range falls linearly from ``approach_from_m`` to ``approach_to_m``
@@ -9,7 +9,14 @@ rendezvous: a 3 s approach covers 250 -> 50 m):
 - ``flyaround``: the camera circles the target at a fixed range: the target turns about
   an axis across the line of sight at ``flyaround_deg_per_s``;
 - ``tumble``: a tumbling target: it spins about a random body axis at
-  ``tumble_deg_per_s`` while that axis precesses at a third of the rate.
+  ``tumble_deg_per_s`` while that axis precesses at a third of the rate;
+- ``docking``: the last metres, ``docking_from_m`` -> ``docking_to_m`` (never inside the
+  spacecraft's bounding sphere plus a metre), drifting like the approach, seen by a camera and
+  LIDAR drawn once per sequence from the robustness suite's docking world (40-60 deg, a flash
+  array or a scanning grid; ``sdcnet.training.data.conditions.DOCKING``): the spacecraft
+  overflows the frame. Not rendered unless asked for (``--trajectories``).
+
+The first three use the paper's camera and LIDAR; every frame's own are in its metadata.
 
 Frames are written in the dataset format (``sdcnet.dataset_format``), one sample per frame,
 with the sequence, trajectory, frame index, time and ``pose``: the target's pose in its own
@@ -31,12 +38,14 @@ from sdcnet import __version__
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR, Intrinsics
 from sdcnet.dataset_format import FORMAT_VERSION, is_complete, read_meta, write_sample
 from sdcnet.rigid import axis_angle
-from sdcnet.training.data.conditions import PAPER, draw_conditions
+from sdcnet.training.data.conditions import DOCKING, PAPER, Conditions, draw_conditions
 from sdcnet.training.data.generate import render_scene
 from sdcnet.training.data.scene import Scene, SceneConfig, sample_scene
 from sdcnet.training.data.spacecraft import SpacecraftModel
 
-TRAJECTORIES = ("approach", "flyaround", "tumble")
+TRAJECTORIES = ("approach", "flyaround", "tumble", "docking")
+#: Those rendered unless others are asked for: the paper's camera and LIDAR.
+DEFAULT_TRAJECTORIES = ("approach", "flyaround", "tumble")
 
 
 @dataclass(frozen=True)
@@ -47,7 +56,7 @@ class SequenceConfig:
     rate_hz: float = 10.0
     size: int = 1024
     seed: int = 0
-    trajectories: tuple[str, ...] = TRAJECTORIES
+    trajectories: tuple[str, ...] = DEFAULT_TRAJECTORIES
     approach_from_m: float = 250.0
     approach_to_m: float = 50.0
     drift_deg_per_s: float = 2.0
@@ -55,6 +64,8 @@ class SequenceConfig:
     flyaround_deg_per_s: float = 15.0
     tumble_range_m: tuple[float, float] = (60.0, 200.0)
     tumble_deg_per_s: float = 10.0
+    docking_from_m: float = 12.0
+    docking_to_m: float = 4.0
 
     @property
     def intrinsics(self) -> Intrinsics:
@@ -66,15 +77,28 @@ def _unit(rng: np.random.Generator) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def trajectory(kind: str, config: SequenceConfig, rng: np.random.Generator) -> list[Scene]:
-    """The scenes of one sequence: the target's attitude and position per frame."""
+def trajectory(
+    kind: str,
+    config: SequenceConfig,
+    rng: np.random.Generator,
+    K: Intrinsics | None = None,
+    radius_m: float = 0.0,
+) -> list[Scene]:
+    """The scenes of one sequence: the target's attitude and position per frame. ``K``: the
+    camera (the docking trajectory places the target within its field of view), ``radius_m``:
+    the spacecraft's bounding radius (the docking trajectory stays outside it)."""
     if kind not in TRAJECTORIES:
         raise ValueError(f"unknown trajectory {kind!r}; choose from {TRAJECTORIES}")
-    start = sample_scene(rng, SceneConfig())  # attitude, offset from the axis, sun
+    scene_config = DOCKING.scene if kind == "docking" else SceneConfig()
+    start = sample_scene(rng, scene_config, K)  # attitude, offset from the axis, sun
     direction = start.translation / np.linalg.norm(start.translation)
     times = np.arange(config.frames) / config.rate_hz
-    if kind == "approach":
-        ranges = np.linspace(config.approach_from_m, config.approach_to_m, config.frames)
+    if kind in ("approach", "docking"):
+        near = radius_m + scene_config.clearance_m
+        ends = (config.approach_from_m, config.approach_to_m)
+        if kind == "docking":
+            ends = (max(config.docking_from_m, near), max(config.docking_to_m, near))
+        ranges = np.linspace(*ends, config.frames)
         axis, rate = _unit(rng), np.radians(config.drift_deg_per_s)
         turns = [axis_angle(axis, rate * t) for t in times]
     elif kind == "flyaround":
@@ -97,15 +121,26 @@ def sequence_id(model_id: int, kind: str, frame: int) -> str:
     return f"m{model_id:04d}_{kind}_f{frame:03d}"
 
 
+def sequence_conditions(kind: str, config: SequenceConfig, model_id: int) -> Conditions:
+    """One camera, sensor and LIDAR for a whole sequence: the paper's, or at docking range
+    one drawn from the docking world."""
+    world = DOCKING if kind == "docking" else PAPER
+    rng = np.random.default_rng([config.seed, model_id, TRAJECTORIES.index(kind), 4])
+    return draw_conditions(world, rng, config.size)
+
+
 def render_sequence(
     model: SpacecraftModel, model_id: int, kind: str, config: SequenceConfig, split: str
 ):
     """The samples (``Sample``) of one sequence, in order."""
     index = TRAJECTORIES.index(kind)
-    scenes = trajectory(kind, config, np.random.default_rng([config.seed, model_id, index, 0]))
-    # one camera, sensor and LIDAR for the whole sequence: the paper's
-    conditions = draw_conditions(
-        PAPER, np.random.default_rng([config.seed, model_id, index, 4]), config.size
+    conditions = sequence_conditions(kind, config, model_id)
+    scenes = trajectory(
+        kind,
+        config,
+        np.random.default_rng([config.seed, model_id, index, 0]),
+        conditions.intrinsics,
+        model.radius_m,
     )
     for frame, scene in enumerate(scenes):
         sample = render_scene(
