@@ -218,15 +218,21 @@ def polished(model: TargetModel, choice: _Choice, returns: np.ndarray | None) ->
     returns than the candidates had."""
     if returns is None:
         return choice
-    best = choice.best
     config = model.config
-    share = _icp_share(model, returns, config.polish_icp_returns)
-    near = share[model.field.near(best.pose.inverse().apply(share))]
-    if len(share) > config.max_icp_returns and len(near) >= config.min_points:
-        pose, result = _precise(model, small_gicp.PointCloud(near), best.pose)
-        error = _returns_error(model, returns, pose)
-        if error <= best.returns_error_m:
-            best.pose, best.result, best.returns_error_m = pose, result, error
+    if len(returns) > config.max_icp_returns:
+        _polish(model, choice.best, _icp_share(model, returns, config.polish_icp_returns), returns)
     gate = config.returns_max_distance_m / 3
-    choice.returns_rmse_m = surface_fit(model, returns, best.pose, gate)[1]
+    choice.returns_rmse_m = surface_fit(model, returns, choice.best.pose, gate)[1]
     return choice
+
+
+def _polish(model: TargetModel, best: Hypothesis, share: np.ndarray, returns: np.ndarray) -> None:
+    """``best`` refined on ``share`` (of ``returns``) when it holds more than the candidates
+    were refined on, kept where all the returns fit it at least as well."""
+    near = share[model.field.near(best.pose.inverse().apply(share))]
+    if len(share) <= model.config.max_icp_returns or len(near) < model.config.min_points:
+        return
+    pose, result = _precise(model, small_gicp.PointCloud(near), best.pose)
+    error = _returns_error(model, returns, pose)
+    if error <= best.returns_error_m:
+        best.pose, best.result, best.returns_error_m = pose, result, error

@@ -22,8 +22,7 @@ class RegistrationConfig:
     samples: tuple[int, int] = (100_000, 200_000)  # ... within these counts
     voxel_of_longest: float = 1 / 32  # the observed cloud is downsampled to this voxel
     coarse_voxel_of_longest: float = 1 / 16  # ... and to this one for the hypotheses' GICP
-    max_cloud_points: int = 50_000  # larger clouds are thinned first
-    max_input_points: int = 2**20  # a cloud given is thinned to this before anything else
+    max_cloud_points: int = 50_000  # larger clouds are thinned first (every k-th point)
     max_refine_returns: int = 8192  # LIDAR returns refined on, at most: more are thinned
     max_icp_returns: int = 512  # ... of which each candidate's ICP moves at most this many,
     polish_icp_returns: int = 2048  # ... and the answer's last refinement this many

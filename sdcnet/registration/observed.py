@@ -64,19 +64,31 @@ def _grid_depth(uvd: np.ndarray, origin: np.ndarray, cell: float, shape) -> np.n
     return depth
 
 
+def evenly(cloud: np.ndarray, most: int) -> np.ndarray:
+    """Every k-th point of ``cloud`` (N, 3), k = N // ``most`` (at least 1). A completed cloud
+    holds a point per pixel (up to ~10^6); every k-th of them (pixel order: an even thinning of
+    the image) still fills every voxel of L / 32."""
+    return cloud[:: max(1, len(cloud) // most)]
+
+
+def span_m(points: np.ndarray) -> float:
+    """The largest extent of (N, 3) ``points`` along an axis, metres. Taken on a transposed
+    copy: numpy reduces across the rows of a three-column array 20 times slower (2.3 ms for
+    a completed cloud's 44,000 points)."""
+    columns = np.ascontiguousarray(points.T)
+    return float(np.max(columns.max(axis=1) - columns.min(axis=1)))
+
+
 def observe(cloud: np.ndarray, model: TargetModel, view: Intrinsics | None = None) -> Observed:
     """``cloud`` (N, 3, camera frame, metres) prepared for scoring poses against it; ``view``:
     the camera (pixels) whose image bounds what the cloud could show, when known."""
     config = model.config
     L = model.longest_m
-    centroid = np.mean(cloud, axis=0, dtype=np.float64)
-    # A completed cloud holds a point per pixel (up to ~10^6); every k-th of them (pixel
-    # order: an even thinning of the image) still fills every voxel of L / 32.
-    step = max(1, len(cloud) // config.max_cloud_points)
-    points = np.asarray(cloud[::step], np.float64)
+    points = np.asarray(evenly(cloud, config.max_cloud_points), np.float64)
+    centroid = np.mean(points, axis=0)
     # Voxels of L / 32, or coarser when the cloud spans more than the target (a cloud that
     # is not of this target, or wrong intrinsics): at most ~48 across, so the cost stays bound.
-    span = float(np.max(np.ptp(points, axis=0)))
+    span = span_m(points)
     voxel = max(L * config.voxel_of_longest, span / 48)
     small, _ = small_gicp.preprocess_points(points, downsampling_resolution=voxel, num_neighbors=10)
     kept = np.asarray(small.points())[:, :3]
