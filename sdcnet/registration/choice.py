@@ -73,9 +73,10 @@ def _refine_on_returns(
     """Each candidate refined by point-to-plane ICP on the LIDAR returns and scored by their
     mean distance to the target's surface, truncated (the returns' noise is a few
     centimetres, the completed cloud's decimetres: they tell near-symmetric poses apart);
-    best first. The ICP moves at most ``max_icp_returns`` of them: enough to rank the
-    candidates, and their ICP is most of a close target's registration time; every return
-    still scores them, and the answer is polished on more (``polished``). A candidate refined
+    best first. The ICP moves at most ``max_icp_returns`` of them, its precise stage for at
+    most ``ranking_iterations``: enough to rank the candidates, and their ICP is most of a
+    close target's registration time; every return still scores them, and the answer is
+    polished on more, for longer (``polished``). A candidate refined
     on them already (the search ran again on the returns and found it again) keeps its
     refinement."""
     config = model.config
@@ -95,21 +96,19 @@ def _refine_on_returns(
         pose, _ = gicp(
             model, source, h.pose, (reach * gate,), config.fine_iterations, kind="PLANE_ICP"
         )
-        h.pose, h.result = _precise(model, source, pose)
+        h.pose, h.result = _precise(model, source, pose, config.ranking_iterations)
         h.returns_error_m = _returns_error(model, returns, h.pose)
     return sorted(candidates, key=lambda h: h.returns_error_m)
 
 
 def _precise(
-    model: TargetModel, source: small_gicp.PointCloud, start: Pose
+    model: TargetModel, source: small_gicp.PointCloud, start: Pose, iterations: int
 ) -> tuple[Pose, small_gicp.RegistrationResult]:
     """Point-to-plane ICP of ``source`` onto the target's dense samples from ``start``,
-    within a third of the returns' gate, until a step moves less than ``final_step_*``."""
-    config = model.config
-    gate = config.returns_max_distance_m / 3
-    return gicp(
-        model, source, start, (gate,), config.final_iterations, precise=True, kind="PLANE_ICP"
-    )
+    within a third of the returns' gate, for at most ``iterations`` or until a step moves
+    less than ``final_step_*``."""
+    gate = model.config.returns_max_distance_m / 3
+    return gicp(model, source, start, (gate,), iterations, precise=True, kind="PLANE_ICP")
 
 
 #: The init's refinement on the returns starts with a gate this many times wider: a tracker's
@@ -211,28 +210,23 @@ def choose_tracked(
 
 
 def polished(model: TargetModel, choice: _Choice, returns: np.ndarray | None) -> _Choice:
-    """The answer refined once more, finely, on up to ``polish_icp_returns`` returns (the
-    candidates were refined on fewer: enough to rank them, not for the last tenth of a
-    degree), kept where the returns fit it at least as well; with the returns' RMS distance
-    to the target at it. Unchanged without returns; not refined again when there are no more
-    returns than the candidates had."""
+    """The answer refined once more on up to ``polish_icp_returns`` returns, for up to
+    ``final_iterations`` (the candidates were refined on fewer, for fewer: enough to rank
+    them, not for the last tenth of a degree), kept where the returns fit it at least as
+    well; with the returns' RMS distance to the target at it. Unchanged without returns."""
     if returns is None:
         return choice
     config = model.config
-    if len(returns) > config.max_icp_returns:
-        _polish(model, choice.best, _icp_share(model, returns, config.polish_icp_returns), returns)
-    gate = config.returns_max_distance_m / 3
-    choice.returns_rmse_m = surface_fit(model, returns, choice.best.pose, gate)[1]
-    return choice
-
-
-def _polish(model: TargetModel, best: Hypothesis, share: np.ndarray, returns: np.ndarray) -> None:
-    """``best`` refined on ``share`` (of ``returns``) when it holds more than the candidates
-    were refined on, kept where all the returns fit it at least as well."""
+    best = choice.best
+    share = _icp_share(model, returns, config.polish_icp_returns)
     near = share[model.field.near(best.pose.inverse().apply(share))]
-    if len(share) <= model.config.max_icp_returns or len(near) < model.config.min_points:
-        return
-    pose, result = _precise(model, small_gicp.PointCloud(near), best.pose)
-    error = _returns_error(model, returns, pose)
-    if error <= best.returns_error_m:
-        best.pose, best.result, best.returns_error_m = pose, result, error
+    if len(near) >= config.min_points:
+        pose, result = _precise(
+            model, small_gicp.PointCloud(near), best.pose, config.final_iterations
+        )
+        error = _returns_error(model, returns, pose)
+        if error <= best.returns_error_m:
+            best.pose, best.result, best.returns_error_m = pose, result, error
+    gate = config.returns_max_distance_m / 3
+    choice.returns_rmse_m = surface_fit(model, returns, best.pose, gate)[1]
+    return choice

@@ -61,7 +61,8 @@ class RegistrationConfig:
     symmetry_tolerance_of_longest: float = 0.003  # see TargetModel._symmetries
     coarse_iterations: int = 8  # GICP iterations per hypothesis, then per finalist:
     fine_iterations: int = 15
-    final_iterations: int = 20  # ... and on the returns, until a step moves less than
+    ranking_iterations: int = 8  # ... each candidate's precise stage on the returns
+    final_iterations: int = 20  # ... and the answer's on more of them, until a step moves less than
     final_step_deg: float = 1e-3
     final_step_m: float = 1e-5
 
