@@ -72,6 +72,10 @@ def test_a_cloud_sampled_under_a_known_pose_gives_that_pose(spacecraft):
     assert not estimate.ambiguous and not estimate.tracked
     assert estimate.fitness > 0.95 and estimate.returns_rmse_m < 0.005
     assert estimate.rotation_sigma_deg < 0.1
+    # A singular Hessian (no correspondence left) gives an infinite covariance: its sigmas
+    # say so instead of failing to find eigenvalues.
+    unconstrained = replace(estimate, covariance=np.full((6, 6), np.inf))
+    assert unconstrained.rotation_sigma_deg == unconstrained.translation_sigma_m == np.inf
 
 
 def test_tracking_refines_a_nearby_pose_and_falls_back_when_lost(spacecraft):

@@ -56,12 +56,20 @@ class PoseEstimate:
     @property
     def rotation_sigma_deg(self) -> float:
         """Standard deviation of the rotation along its least certain axis, degrees."""
-        return float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(self.covariance[:3, :3])[-1], 0))))
+        return float(np.degrees(_largest_deviation(self.covariance[:3, :3])))
 
     @property
     def translation_sigma_m(self) -> float:
         """Standard deviation of t along its least certain axis, metres."""
-        return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance[3:, 3:])[-1], 0)))
+        return _largest_deviation(self.covariance[3:, 3:])
+
+
+def _largest_deviation(block: np.ndarray) -> float:
+    """The square root of the largest eigenvalue of a (3, 3) covariance block; infinite when
+    the covariance is not finite (a singular Hessian: the pose is free along some axis)."""
+    if not np.all(np.isfinite(block)):
+        return float("inf")
+    return float(np.sqrt(max(np.linalg.eigvalsh(block)[-1], 0)))
 
 
 class UnusableCloudError(ValueError):
