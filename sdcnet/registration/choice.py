@@ -76,9 +76,8 @@ def _refine_on_returns(
     best first. The ICP moves at most ``max_icp_returns`` of them, its precise stage for at
     most ``ranking_iterations``: enough to rank the candidates, and their ICP is most of a
     close target's registration time; every return still scores them, and the answer is
-    polished on more, for longer (``polished``). A candidate refined
-    on them already (the search ran again on the returns and found it again) keeps its
-    refinement."""
+    polished on more, for longer (``polished``). A candidate refined on them already (the
+    search ran again on the returns and found it again) keeps its refinement."""
     config = model.config
     gate = config.returns_max_distance_m
     thinned = _icp_share(model, returns, config.max_icp_returns)
