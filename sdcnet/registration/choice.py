@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import small_gicp
 
-from sdcnet.registration.observed import Observed, consistency
+from sdcnet.registration.observed import Observed, consistency, thinned_to
 from sdcnet.registration.refine import Hypothesis, gicp
 from sdcnet.registration.search import mirrored
 from sdcnet.registration.target import TargetModel, surface_distances, surface_fit
@@ -56,8 +56,7 @@ def _icp_share(model: TargetModel, returns: np.ndarray, count: int) -> np.ndarra
         downsampling_resolution=model.longest_m * model.config.returns_voxel_of_longest,
         num_neighbors=6,
     )
-    points = np.asarray(voxels.points())[:, :3]
-    return points[:: -(-len(points) // count)]
+    return thinned_to(np.asarray(voxels.points())[:, :3], count)
 
 
 def _returns_error(model: TargetModel, returns: np.ndarray, pose: Pose) -> float:

@@ -23,7 +23,7 @@ from sdcnet.camera import Intrinsics
 from sdcnet.registration.choice import choose_searched, choose_tracked, polished
 from sdcnet.registration.config import RegistrationConfig
 from sdcnet.registration.covariance import covariance
-from sdcnet.registration.observed import evenly, observe, span_m
+from sdcnet.registration.observed import evenly, observe, span_m, thinned_to
 from sdcnet.registration.refine import Hypothesis, refine_dense
 from sdcnet.registration.search import search, seeded_by_returns
 from sdcnet.registration.target import TargetModel, surface_fit
@@ -92,14 +92,6 @@ def in_basin(model: TargetModel, pose: Pose, init: Pose) -> bool:
     )
 
 
-def _thinned(points: np.ndarray, most: int) -> np.ndarray:
-    """Every k-th of (N, 3) ``points``, at most ``most`` of them: an even thinning of a cloud
-    in pixel order. Bounds the time and memory of one registration: a bright 2048 x 2048
-    frame's 4M points and 262,144 returns took 19 s (the returns' refinement, holding the
-    interpreter all along), 0.7 s thinned."""
-    return points[:: -(-len(points) // most)] if len(points) > most else points
-
-
 def _finite(points: np.ndarray) -> np.ndarray:
     """The rows of (N, 3) ``points`` that are finite, float64."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
@@ -154,7 +146,7 @@ def estimate_pose(
             "are needed for a pose",
         )
     if returns is not None:
-        returns = _finite(_thinned(returns, config.max_refine_returns))
+        returns = _finite(thinned_to(returns, config.max_refine_returns))
         returns = returns if len(returns) >= config.min_points else None
     timings["prepare_ms"] = (time.perf_counter() - started) * 1e3
     refined = tracked = None

@@ -32,7 +32,7 @@ class Observed:
 
     cloud: small_gicp.PointCloud  # downsampled, with covariances
     points: np.ndarray  # (n, 3) the points of ``cloud``
-    centroid: np.ndarray  # (3,) of the full cloud (pixel-uniform), metres
+    centroid: np.ndarray  # (3,) of the cloud thinned evenly (pixel-uniform), metres
     basis: np.ndarray  # rows: two axes across the line of sight, the line of sight
     cell: float
     origin: np.ndarray  # (2,) grid corner across the line of sight
@@ -69,6 +69,14 @@ def evenly(cloud: np.ndarray, most: int) -> np.ndarray:
     holds a point per pixel (up to ~10^6); every k-th of them (pixel order: an even thinning of
     the image) still fills every voxel of L / 32."""
     return cloud[:: max(1, len(cloud) // most)]
+
+
+def thinned_to(points: np.ndarray, most: int) -> np.ndarray:
+    """Every k-th of (N, 3) ``points``, at most ``most`` of them (``evenly`` may keep up to
+    twice ``most``). Bounds the time and memory of one registration: a bright 2048 x 2048
+    frame's 4M points and 262,144 returns took 19 s (the returns' refinement, holding the
+    interpreter all along), 0.7 s thinned."""
+    return points[:: -(-len(points) // most)] if len(points) > most else points
 
 
 def span_m(points: np.ndarray) -> float:

@@ -94,9 +94,9 @@ def trajectory(
     direction = start.translation / np.linalg.norm(start.translation)
     times = np.arange(config.frames) / config.rate_hz
     if kind in ("approach", "docking"):
-        near = radius_m + scene_config.clearance_m
         ends = (config.approach_from_m, config.approach_to_m)
         if kind == "docking":
+            near = radius_m + scene_config.clearance_m
             ends = (max(config.docking_from_m, near), max(config.docking_to_m, near))
         ranges = np.linspace(*ends, config.frames)
         axis, rate = _unit(rng), np.radians(config.drift_deg_per_s)
