@@ -132,20 +132,36 @@ def test_thousands_of_returns_are_refined_on_a_bounded_share_to_the_same_pose(sp
 def test_candidates_ranked_on_a_few_returns_leave_the_answer_polished_on_more(spacecraft, seed):
     """Each candidate's ICP moves ``max_icp_returns`` returns (here 16, with 2 cm of noise):
     enough to rank the candidates, not to place the answer; its last refinement on
-    ``polish_icp_returns`` does."""
+    ``polish_icp_returns`` does, unless the returns lie farther from the answer than
+    ``polish_max_returns_error_m`` (here 0: never)."""
     mesh, _ = spacecraft
     truth = Pose(axis_angle([0.3, -1.0, 0.4], 2.2 + seed), np.array([0.8, -0.5, 120.0]))
     cloud = visible_samples(mesh, truth, seed=1)
     returns = cloud + np.random.default_rng(seed).normal(0, 0.02, cloud.shape)
     errors = {}
-    for polish in (16, DEFAULT_CONFIG.polish_icp_returns):
-        config = replace(DEFAULT_CONFIG, max_icp_returns=16, polish_icp_returns=polish)
+    for polish_within in (DEFAULT_CONFIG.polish_max_returns_error_m, 0.0):
+        config = replace(
+            DEFAULT_CONFIG, max_icp_returns=16, polish_max_returns_error_m=polish_within
+        )
         estimate = estimate_pose(TargetModel(mesh.vertices, mesh.faces, config), cloud, returns)
-        errors[polish] = pose_errors(estimate.pose, truth)
+        errors[polish_within] = pose_errors(estimate.pose, truth)
         assert estimate.verdict == "reliable"
-    rotation_deg, translation_m = errors[DEFAULT_CONFIG.polish_icp_returns]
+    rotation_deg, translation_m = errors[DEFAULT_CONFIG.polish_max_returns_error_m]
     assert rotation_deg < 0.4 and translation_m < 0.005
-    assert errors[16][0] > 0.9 and errors[16][1] > 0.01  # not polished: the candidates' own
+    assert errors[0.0][0] > 0.9 and errors[0.0][1] > 0.01  # not polished: the candidates' own
+
+
+def test_the_distance_field_leaves_out_no_point_within_reach_of_the_surface():
+    """``DistanceField.near(points, reach)`` reads the distance at a cell's centre: a point
+    within ``reach`` of the surface is always kept, one two cells beyond it never."""
+    box = trimesh.creation.box((3.0, 2.0, 1.0))
+    model = TargetModel(box.vertices, box.faces)
+    field, reach = model.field, 0.2
+    on_surface, faces = trimesh.sample.sample_surface(box, 2000, seed=0)
+    outward = box.face_normals[faces]
+    for distance in (0.0, 0.5 * reach, reach):
+        assert field.near(on_surface + distance * outward, reach).all()
+    assert not field.near(on_surface + (reach + 2 * field.cell) * outward, reach).any()
 
 
 def test_the_camera_frames_what_lies_ahead_of_it_inside_its_image():

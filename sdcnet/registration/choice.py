@@ -63,7 +63,15 @@ def _returns_error(model: TargetModel, returns: np.ndarray, pose: Pose) -> float
     """The returns' mean distance to the target at ``pose``, truncated at a third of the
     correspondence gate (metres): a wrong pose's far returns count the same."""
     gate = model.config.returns_max_distance_m / 3
-    return float(np.mean(np.minimum(surface_distances(model, returns, pose), gate)))
+    distances = surface_distances(model, _scored(model, returns), pose)
+    return float(np.mean(np.minimum(distances, gate)))
+
+
+def _scored(model: TargetModel, returns: np.ndarray) -> np.ndarray:
+    """The returns a pose's fit is measured on: every k-th, at most ``max_scored_returns``
+    (their nearest-neighbour search on the target, once per candidate, was a third of a close
+    target's registration time at 8,192 returns)."""
+    return thinned_to(returns, model.config.max_scored_returns)
 
 
 def _refine_on_returns(
@@ -90,22 +98,33 @@ def _refine_on_returns(
         if np.count_nonzero(near) < config.min_points:
             h.returns_error_m = float(gate / 3)
             continue
-        source = small_gicp.PointCloud(thinned[near])
         pose, _ = gicp(
-            model, source, h.pose, (reach * gate,), config.fine_iterations, kind="PLANE_ICP"
+            model,
+            small_gicp.PointCloud(thinned[near]),
+            h.pose,
+            (reach * gate,),
+            config.fine_iterations,
+            kind="PLANE_ICP",
         )
-        h.pose, h.result = _precise(model, source, pose, config.ranking_iterations)
+        h.pose, h.result = _precise(model, thinned[near], pose, config.ranking_iterations)
         h.returns_error_m = _returns_error(model, returns, h.pose)
     return sorted(candidates, key=lambda h: h.returns_error_m)
 
 
 def _precise(
-    model: TargetModel, source: small_gicp.PointCloud, start: Pose, iterations: int
+    model: TargetModel, points: np.ndarray, start: Pose, iterations: int
 ) -> tuple[Pose, small_gicp.RegistrationResult]:
-    """Point-to-plane ICP of ``source`` onto the target's dense samples from ``start``,
-    within a third of the returns' gate, for at most ``iterations`` or until a step moves
-    less than ``final_step_*``."""
+    """Point-to-plane ICP of ``points`` (N, 3, camera frame) onto the target's dense samples
+    from ``start``, within a third of the returns' gate, for at most ``iterations`` or until a
+    step moves less than ``final_step_*``. Only the points that may lie within that gate at
+    ``start`` take part (all of them when fewer than ``min_points`` do): the others find no
+    match, and the dense k-d tree is slow to say so (a wrong candidate's precise stage took
+    four times its wide one)."""
     gate = model.config.returns_max_distance_m / 3
+    near = model.field.near(start.inverse().apply(points), gate)
+    if np.count_nonzero(near) >= model.config.min_points:
+        points = points[near]
+    source = small_gicp.PointCloud(points)
     return gicp(model, source, start, (gate,), iterations, precise=True, kind="PLANE_ICP")
 
 
@@ -211,20 +230,21 @@ def polished(model: TargetModel, choice: _Choice, returns: np.ndarray | None) ->
     """The answer refined once more on up to ``polish_icp_returns`` returns, for up to
     ``final_iterations`` (the candidates were refined on fewer, for fewer: enough to rank
     them, not for the last tenth of a degree), kept where the returns fit it at least as
-    well; with the returns' RMS distance to the target at it. Unchanged without returns."""
+    well; not where they lie farther from it than ``polish_max_returns_error_m`` (a wrong
+    answer: polishing it was a fifth of such a frame's time, and never made it reliable);
+    with the returns' RMS distance to the target at it. Unchanged without returns."""
     if returns is None:
         return choice
     config = model.config
     best = choice.best
-    share = _icp_share(model, returns, config.polish_icp_returns)
-    near = share[model.field.near(best.pose.inverse().apply(share))]
-    if len(near) >= config.min_points:
-        pose, result = _precise(
-            model, small_gicp.PointCloud(near), best.pose, config.final_iterations
-        )
-        error = _returns_error(model, returns, pose)
-        if error <= best.returns_error_m:
-            best.pose, best.result, best.returns_error_m = pose, result, error
+    if best.returns_error_m <= config.polish_max_returns_error_m:
+        share = _icp_share(model, returns, config.polish_icp_returns)
+        near = share[model.field.near(best.pose.inverse().apply(share))]
+        if len(near) >= config.min_points:
+            pose, result = _precise(model, near, best.pose, config.final_iterations)
+            error = _returns_error(model, returns, pose)
+            if error <= best.returns_error_m:
+                best.pose, best.result, best.returns_error_m = pose, result, error
     gate = config.returns_max_distance_m / 3
-    choice.returns_rmse_m = surface_fit(model, returns, best.pose, gate)[1]
+    choice.returns_rmse_m = surface_fit(model, _scored(model, returns), best.pose, gate)[1]
     return choice

@@ -26,6 +26,8 @@ class RegistrationConfig:
     max_refine_returns: int = 8192  # LIDAR returns refined on, at most: more are thinned
     max_icp_returns: int = 512  # ... of which each candidate's ICP moves at most this many,
     polish_icp_returns: int = 2048  # ... and the answer's last refinement this many
+    polish_max_returns_error_m: float = 0.06  # ... unless they lie farther than this from it
+    max_scored_returns: int = 2048  # returns a pose's fit to them is measured on, at most
     field_cell_of_longest: float = 1 / 48  # distance field cell
     coarse_truncation_of_longest: float = 0.05  # distances above it score the same
     grid_cell_of_longest: float = 1 / 40  # cell of the consistency grid

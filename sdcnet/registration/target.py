@@ -94,9 +94,12 @@ class DistanceField:
         values[near] = np.minimum(np.sqrt(squared), truncation)
         return cls(origin, cell, values, truncation)
 
-    def near(self, points: np.ndarray) -> np.ndarray:
-        """Whether target-frame ``points`` (N, 3) lie within the truncation of the surface."""
-        return self.at_cells((points - self.origin) / self.cell) < self.truncation
+    def near(self, points: np.ndarray, reach: float | None = None) -> np.ndarray:
+        """Whether target-frame ``points`` (N, 3) may lie within ``reach`` metres of the
+        surface (within the truncation when None). A cell holds its centre's distance, which
+        differs from its points' by at most 0.87 cell: none within ``reach`` is left out."""
+        limit = self.truncation if reach is None else min(reach + self.cell, self.truncation)
+        return self.at_cells((points - self.origin) / self.cell) < limit
 
     def at_cells(self, cells: np.ndarray) -> np.ndarray:
         """Distances at grid coordinates (..., 3) (target-frame position minus ``origin``,
