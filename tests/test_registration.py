@@ -21,6 +21,7 @@ from sdcnet.registration import (
     judge,
 )
 from sdcnet.registration.observed import consistency, framed_by, observe
+from sdcnet.registration.search import search as search_from_scratch
 from sdcnet.rigid import (
     Pose,
     axis_angle,
@@ -29,6 +30,7 @@ from sdcnet.rigid import (
     parse_pose,
     pose_errors,
     quaternion_from_matrix,
+    rotation_angle_deg,
 )
 from tests.support.targets import probe_mesh
 
@@ -320,6 +322,40 @@ def test_the_verdict_follows_from_the_evidence(change, verdict, reason):
 def test_an_asymmetric_real_shape_has_no_symmetry(spacecraft):
     _, model = spacecraft
     assert model.symmetries == []
+
+
+def winged_box() -> trimesh.Trimesh:
+    """A 2 x 1 x 1 m bus with one 1.2 x 2 m wing on its +y side, off its middle: no turn maps it
+    onto itself, its 180-degree turn about the bus's long axis almost does (the bus)."""
+    bus = trimesh.creation.box((2.0, 1.0, 1.0))
+    wing = trimesh.creation.box((1.2, 2.0, 0.02))
+    wing.apply_translation([0.4, 1.5, 0.0])
+    return trimesh.util.concatenate([bus, wing])
+
+
+def test_a_turn_that_almost_maps_the_target_onto_itself_is_a_near_twin_not_a_symmetry():
+    mesh = winged_box()
+    model = TargetModel(mesh.vertices, mesh.faces)
+    assert model.symmetries == [] and len(model.near_twins) == 1
+    assert rotation_angle_deg(model.near_twins[0][:3, :3], np.eye(3)) == pytest.approx(180, abs=5)
+    strict = replace(DEFAULT_CONFIG, near_twin_tolerance_of_longest=0.0)
+    assert TargetModel(mesh.vertices, mesh.faces, strict).near_twins == []
+    box = trimesh.creation.box((3.0, 2.0, 1.0))  # its turns are symmetries, not near twins
+    assert TargetModel(box.vertices, box.faces).near_twins == []
+
+
+def test_the_search_offers_the_best_pose_turned_by_each_near_twin():
+    """The search's starts lie 25 degrees apart at least, so a pose and its near twin seldom
+    both start: the best is turned by each near twin, for the returns to tell them apart."""
+    mesh = winged_box()
+    model = TargetModel(mesh.vertices, mesh.faces)
+    truth = Pose(axis_angle([0.4, 1.0, -0.2], 0.9), np.array([0.2, -0.1, 30.0]))
+    hypotheses = search_from_scratch(
+        model, observe(visible_samples(mesh, truth, seed=2), model, None), {}
+    )
+    best = hypotheses[0].pose.matrix()
+    twin = Pose.from_matrix(best @ model.near_twins[0])
+    assert min(rotation_angle_deg(h.pose.R, twin.R) for h in hypotheses[1:]) < 0.01
 
 
 def test_a_cloud_too_small_or_too_large_or_not_finite_is_an_error(spacecraft):

@@ -61,6 +61,7 @@ class RegistrationConfig:
     returns_doubt_m: float = 0.015
     voxelmap_of_longest: float = 1 / 24  # voxels of the target for the hypotheses' VGICP
     symmetry_tolerance_of_longest: float = 0.003  # see TargetModel._symmetries
+    near_twin_tolerance_of_longest: float = 0.01  # see TargetModel._near_twins
     coarse_iterations: int = 8  # GICP iterations per hypothesis, then per finalist:
     fine_iterations: int = 15
     ranking_iterations: int = 8  # ... each candidate's precise stage on the returns

@@ -16,7 +16,9 @@
    the next ``retry_hypotheses`` are refined too.
 
 The target's self-symmetries (found once, ``TargetModel._symmetries``) turn the best into more
-candidates.
+candidates, and so do its near twins (``TargetModel._near_twins``: 180-degree turns that map it
+almost onto itself), which the returns then tell apart: the search's starts, 25 degrees apart
+at least, seldom hold both a pose and its near twin.
 
 When the LIDAR returns lie off the target at the answer (``returns_doubt_m``), the same search
 runs on them alone (``seeded_by_returns``) and its best poses join the candidates, scored on
@@ -123,15 +125,22 @@ def _coarse_search(model: TargetModel, observed: Observed, count: int) -> list[P
     return chosen
 
 
+def turned(
+    model: TargetModel, hypothesis: Hypothesis, observed: Observed, turns: list[np.ndarray]
+) -> list[Hypothesis]:
+    """``hypothesis`` turned by each of ``turns`` (4 x 4, target frame), scored."""
+    poses = [Pose.from_matrix(hypothesis.pose.matrix() @ S) for S in turns]
+    return [Hypothesis(p, consistency(model, p, observed), hypothesis.result) for p in poses]
+
+
 def mirrored(model: TargetModel, hypothesis: Hypothesis, observed: Observed) -> list[Hypothesis]:
     """``hypothesis`` turned by each of the target's symmetries, scored."""
-    poses = [Pose.from_matrix(hypothesis.pose.matrix() @ S) for S in model.symmetries]
-    return [Hypothesis(p, consistency(model, p, observed), hypothesis.result) for p in poses]
+    return turned(model, hypothesis, observed, model.symmetries)
 
 
 def search(model: TargetModel, observed: Observed, timings: dict) -> list[Hypothesis]:
     """Steps 1-2 of the module docstring, scored by step 3: refined hypotheses, most
-    consistent first, with the best's symmetric twins."""
+    consistent first, with the best's symmetric and near twins."""
     config = model.config
     mark = time.perf_counter()
     starts = _coarse_search(model, observed, config.hypotheses + config.retry_hypotheses)
@@ -148,7 +157,8 @@ def search(model: TargetModel, observed: Observed, timings: dict) -> list[Hypoth
     ]
     hypotheses = sorted(finalists + refined[config.finalists :], key=lambda h: -h.consistency)
     timings["refine_ms"] = (time.perf_counter() - mark) * 1e3
-    return hypotheses + mirrored(model, hypotheses[0], observed)
+    twins = [*model.symmetries, *model.near_twins]
+    return hypotheses + turned(model, hypotheses[0], observed, twins)
 
 
 def seeded_by_returns(

@@ -1,6 +1,6 @@
 """A target's mesh prepared once for the registration (``TargetModel``): surface samples, GICP
-clouds with covariances, a distance field, what the target shows from many view directions and
-its self-symmetries; and the distances of observed points to its surface."""
+clouds with covariances, a distance field, what the target shows from many view directions,
+its self-symmetries and near twins; and the distances of observed points to its surface."""
 
 from __future__ import annotations
 
@@ -159,9 +159,11 @@ class TargetModel:
             small_gicp.PointCloud(self.surface), L * config.grid_cell_of_longest / 2.5
         )
         self.render_points = np.asarray(render.points())[:, :3]
-        self.symmetries = self._symmetries(_dominant_normals(mesh))
+        self_fit = _SelfFit(self)
+        self.symmetries = self._symmetries(self_fit, _dominant_normals(mesh))
+        self.near_twins = self._near_twins(self_fit)
 
-    def _symmetries(self, normals: np.ndarray) -> list[np.ndarray]:
+    def _symmetries(self, self_fit: _SelfFit, normals: np.ndarray) -> list[np.ndarray]:
         """Rigid motions S (4 x 4, target frame) with S(target) ~ target: if P is the pose,
         P S explains any view as well. Candidates are turns by 360/n degrees (n = 2, 3, 4,
         6) about the principal axes through the centroid and about the dominant face
@@ -174,53 +176,93 @@ class TargetModel:
         On the NASA meshes: Dawn's 180-degree turns move the samples 0.03 % of L more,
         Juno's 120-degree turn 0.19 %, TDRS's 180-degree turn 0.10 %; the nearest misses
         (Messenger, Juno turned 180 degrees) 0.38-0.44 %."""
-        config = self.config
-        L = self.longest_m
-        probe, _ = small_gicp.preprocess_points(
-            self.surface, downsampling_resolution=L / 48, num_neighbors=10
-        )
-        points = np.asarray(probe.points())[:, :3]
-
-        def moved(T: np.ndarray) -> np.ndarray:
-            return points @ T[:3, :3].T + T[:3, 3]
-
-        def coarse_spread(T: np.ndarray) -> float:
-            return float(
-                np.mean(self.field.at_cells((moved(T) - self.field.origin) / self.field.cell))
-            )
-
-        def spread(T: np.ndarray) -> float:
-            _, squared = self.tree.batch_nearest_neighbor_search(moved(T))
-            return float(np.mean(np.minimum(np.sqrt(squared), L / 50)))
-
-        floors = coarse_spread(np.eye(4)), spread(np.eye(4))
-        tolerance = floors[1] + config.symmetry_tolerance_of_longest * L
-        centre = self.surface.mean(axis=0)
-        _, _, principal = np.linalg.svd(self.surface - centre, full_matrices=False)
+        tolerance = self_fit.floor + self.config.symmetry_tolerance_of_longest * self.longest_m
         found: list[np.ndarray] = []
-        for axis in [*principal, *normals]:
-            for n in (2, 3, 4, 6):
-                turn = axis_angle(axis, 2 * np.pi / n)
-                T = Pose(turn, centre - turn @ centre).matrix()
-                if coarse_spread(T) > 4 * floors[0]:
-                    continue
-                T = small_gicp.align(
-                    self.sparse_cloud,
-                    probe,
-                    self.sparse_tree,
-                    T,
-                    max_correspondence_distance=L / 20,
-                ).T_target_source
-                for S in (T, np.linalg.inv(T)):
-                    angles = [rotation_angle_deg(S[:3, :3], F[:3, :3]) for F in [np.eye(4), *found]]
-                    if min(angles) >= config.alternative_deg and spread(S) <= tolerance:
-                        found.append(S)
-        for A, B in [(A, B) for A in found for B in found]:  # compositions: a box's third turn
-            S = A @ B
-            angles = [rotation_angle_deg(S[:3, :3], F[:3, :3]) for F in [np.eye(4), *found]]
-            if min(angles) >= config.alternative_deg and spread(S) <= tolerance:
+
+        def add(S: np.ndarray) -> None:
+            if self._new_turn(S, found) and self_fit.spread(S) <= tolerance:
                 found.append(S)
+
+        for axis in [*self_fit.principal, *normals]:
+            for n in (2, 3, 4, 6):
+                T = self_fit.turn(axis, 2 * np.pi / n)
+                if self_fit.coarse_spread(T) > 4 * self_fit.coarse_floor:
+                    continue
+                T = self_fit.refined(T)
+                for S in (T, np.linalg.inv(T)):
+                    add(S)
+        for A, B in [(A, B) for A in found for B in found]:  # compositions: a box's third turn
+            add(A @ B)
         return found
+
+    def _near_twins(self, self_fit: _SelfFit) -> list[np.ndarray]:
+        """Turns by 180 degrees about the principal axes that map the target almost onto
+        itself, within ``near_twin_tolerance_of_longest`` x L but not a symmetry: poses P S
+        the completed cloud hardly tells from P, which only the returns (centimetres, on the
+        parts that differ) can. The search offers the best pose turned by each
+        (``sdcnet.registration.search``); Juno's and a comsat's panels turned the answer 180
+        degrees without them (docs/pose/README.md)."""
+        L = self.longest_m
+        tolerance = self_fit.floor + self.config.near_twin_tolerance_of_longest * L
+        twins: list[np.ndarray] = []
+        for axis in self_fit.principal:
+            T = self_fit.refined(self_fit.turn(axis, np.pi))
+            if self._new_turn(T, [*self.symmetries, *twins]) and self_fit.spread(T) <= tolerance:
+                twins.append(T)
+        return twins
+
+    def _new_turn(self, T: np.ndarray, known: list[np.ndarray]) -> bool:
+        """Whether the turn of ``T`` is at least ``alternative_deg`` from no turn and from
+        each of ``known``."""
+        angles = [rotation_angle_deg(T[:3, :3], K[:3, :3]) for K in [np.eye(4), *known]]
+        return min(angles) >= self.config.alternative_deg
+
+
+class _SelfFit:
+    """How well the target, moved by a rigid motion T (4 x 4, target frame), lies on itself:
+    its surface thinned to L / 48 (the probe), moved, measured against the distance field
+    (coarse) or the dense samples, beside the floor the sampling sets (T = identity)."""
+
+    def __init__(self, model: TargetModel):
+        self.model = model
+        L = model.longest_m
+        self.probe, _ = small_gicp.preprocess_points(
+            model.surface, downsampling_resolution=L / 48, num_neighbors=10
+        )
+        self.points = np.asarray(self.probe.points())[:, :3]
+        self.centre = model.surface.mean(axis=0)
+        _, _, self.principal = np.linalg.svd(model.surface - self.centre, full_matrices=False)
+        self.coarse_floor = self.coarse_spread(np.eye(4))
+        self.floor = self.spread(np.eye(4))
+
+    def moved(self, T: np.ndarray) -> np.ndarray:
+        return self.points @ T[:3, :3].T + T[:3, 3]
+
+    def coarse_spread(self, T: np.ndarray) -> float:
+        """The moved probe's mean distance to the surface read from the distance field."""
+        field = self.model.field
+        return float(np.mean(field.at_cells((self.moved(T) - field.origin) / field.cell)))
+
+    def spread(self, T: np.ndarray) -> float:
+        """The moved probe's mean distance to the dense samples, each at most L / 50."""
+        _, squared = self.model.tree.batch_nearest_neighbor_search(self.moved(T))
+        return float(np.mean(np.minimum(np.sqrt(squared), self.model.longest_m / 50)))
+
+    def turn(self, axis: np.ndarray, angle: float) -> np.ndarray:
+        """The turn by ``angle`` (radians) about ``axis`` through the centroid, 4 x 4."""
+        R = axis_angle(axis, angle)
+        return Pose(R, self.centre - R @ self.centre).matrix()
+
+    def refined(self, T: np.ndarray) -> np.ndarray:
+        """``T`` refined by GICP of the probe onto the target's sparse samples."""
+        model = self.model
+        return small_gicp.align(
+            model.sparse_cloud,
+            self.probe,
+            model.sparse_tree,
+            T,
+            max_correspondence_distance=model.longest_m / 20,
+        ).T_target_source
 
 
 def _normals(points: np.ndarray, tree: small_gicp.KdTree, neighbours: int = 10) -> np.ndarray:
