@@ -47,6 +47,7 @@ class Target:
             "bounds_m": [np.round(lo, 6).tolist(), np.round(hi, 6).tolist()],
             "faces": len(self.faces),
             "symmetries": len(self.model.symmetries),
+            "near_twins": len(self.model.near_twins),
         }
 
 

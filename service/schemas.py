@@ -188,6 +188,9 @@ class TargetInfo(BaseModel):
     bounds_m: list[list[float]] = Field(description="[min xyz, max xyz] in its frame, metres")
     faces: int
     symmetries: int = Field(description="self-symmetries found (turns that map it onto itself)")
+    near_twins: int = Field(
+        description="turns that map it almost onto itself: the returns tell those poses apart"
+    )
 
 
 class ModelMetadata(BaseModel):

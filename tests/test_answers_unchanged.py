@@ -8,8 +8,9 @@ computes is a new model version: rewrite the file with
     python -m tests.test_answers_unchanged --write
 
 (``make reports`` does, after exporting) and say in the commit why the answers changed. A
-fresh export of ``models/sdcnet.pt`` must answer the same: the training-side code (model,
-exporter) is held to the stored answers too (that test needs torch, and is skipped without it).
+fresh export of ``models/sdcnet.pt`` must answer as the shipped model, to the exporting CPU's
+rounding: the training-side code (model, exporter) is held to the stored answers too (that
+test needs torch, and is skipped without it).
 """
 
 from __future__ import annotations
@@ -68,15 +69,20 @@ def frame_inputs(name: str) -> tuple[np.ndarray, np.ndarray]:
     return gray, sparse
 
 
-def in_process_fingerprint(onnx: Path, name: str) -> dict:
-    """The fingerprint of ``onnx``'s answer to a stored frame, through ``sdcnet.pipeline`` as
-    the service runs it (the paper's camera: the frames' own)."""
+def in_process_answer(onnx: Path, name: str) -> tuple[np.ndarray, ...]:
+    """``onnx``'s depth, mask, sigma and points for a stored frame, through
+    ``sdcnet.pipeline`` as the service runs it (the paper's camera: the frames' own)."""
     model = OnnxModel(onnx, provider="cpu", threads=1)
     gray, sparse = frame_inputs(name)
     K = PAPER_CAMERA.intrinsics()
     result = complete(model.run, gray, sparse, K.fx, model.info.stride, model.info.work_pixels)
     points = back_project(result.depth, result.mask, K)
-    return fingerprint(result.depth, result.mask, result.sigma, points)
+    return result.depth, result.mask, result.sigma, points
+
+
+def in_process_fingerprint(onnx: Path, name: str) -> dict:
+    """The fingerprint of ``onnx``'s answer to a stored frame (``in_process_answer``)."""
+    return fingerprint(*in_process_answer(onnx, name))
 
 
 def stored() -> dict:
@@ -104,7 +110,11 @@ def test_the_in_process_pipeline_answers_as_the_service(name):
     assert in_process_fingerprint(shipped_model_path(), name) == stored()[name]
 
 
-def test_a_fresh_export_of_the_shipped_checkpoint_answers_as_stored(tmp_path):
+def test_a_fresh_export_of_the_shipped_checkpoint_answers_as_the_shipped_model(tmp_path):
+    """The shipped model is held to the stored answers bit for bit (above); a fresh export
+    to its answers, to the rounding of the CPU that exports: torch folds the exported
+    constants with its own kernels, and on an Intel Xeon the shipped model's export (made on
+    an AMD EPYC) gave the same mask and depth and a sigma off in the seventh digit."""
     pytest.importorskip("torch", reason="exporting needs torch (make test-runtime has none)")
     from sdcnet.export.cli import main as export_main
 
@@ -112,7 +122,12 @@ def test_a_fresh_export_of_the_shipped_checkpoint_answers_as_stored(tmp_path):
     checkpoint = shipped_model_path().with_suffix(".pt")
     assert export_main(["--checkpoint", str(checkpoint), "--out", str(out)]) == 0
     for name in sorted(FRAMES):
-        assert in_process_fingerprint(out, name) == stored()[name]
+        depth, mask, sigma, points = in_process_answer(out, name)
+        shipped = in_process_answer(shipped_model_path(), name)
+        np.testing.assert_array_equal(mask, shipped[1])
+        np.testing.assert_allclose(depth, shipped[0], rtol=0, atol=1e-6)  # metres
+        np.testing.assert_allclose(sigma, shipped[2], rtol=1e-5, atol=1e-9)
+        np.testing.assert_allclose(points, shipped[3], rtol=0, atol=1e-6)
 
 
 def test_a_changed_answer_changes_its_fingerprint():

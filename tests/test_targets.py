@@ -38,6 +38,7 @@ def test_a_gltf_scene_graph_is_applied_and_the_target_scaled_in_its_own_frame(tm
     described = sat.describe()
     assert described["name"] == "sat" and described["file"] == "sat.glb"
     assert described["symmetries"] == len(sat.model.symmetries) > 0  # a box turns onto itself
+    assert described["near_twins"] == 0  # its turns are exact: symmetries, not near twins
 
 
 @pytest.mark.parametrize(

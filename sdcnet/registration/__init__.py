@@ -6,7 +6,8 @@ covariances, a distance field, what the target shows from many view directions);
 module each:
 
 - ``config``: ``RegistrationConfig``, the knobs of every stage.
-- ``target``: ``TargetModel``, its distance field and self-symmetries; distances to its surface.
+- ``target``: ``TargetModel``, its distance field, self-symmetries and near twins; distances
+  to its surface.
 - ``observed``: the observed cloud prepared, and step 3, the consistency that scores a pose.
 - ``refine``: ``Hypothesis`` and its GICP refinement (small_gicp) on the observed cloud.
 - ``search``: steps 1-2, from scratch: the coarse search over views and rolls, then GICP.
