@@ -15,7 +15,10 @@ REASONS: dict[str, tuple[bool, str]] = {
     "too_few_points": (True, "too few points of the cloud to register"),
     "too_few_returns": (True, "too few LIDAR returns to check the pose against"),
     "returns_misfit": (True, "the LIDAR returns lie off the target at this pose"),
-    "symmetric_twins": (False, "other poses (a symmetric target) fit the frame as well"),
+    "symmetric_twins": (
+        False,
+        "other poses (a symmetric or near-symmetric target) fit the frame as well",
+    ),
     "close_alternative": (False, "another pose fits the frame almost as well"),
     "left_init": (False, "the answer left the basin of the tracker's init"),
 }
