@@ -94,19 +94,15 @@ def _refine_on_returns(
         h.on_returns = True
         # Only the returns near the target at this pose: far ones (another object, or a wrong
         # candidate) cannot match, and the k-d tree is slow to say so.
-        near = model.field.near(h.pose.inverse().apply(thinned))
-        if np.count_nonzero(near) < config.min_points:
+        near = thinned[model.field.near(h.pose.inverse().apply(thinned))]
+        if len(near) < config.min_points:
             h.returns_error_m = float(gate / 3)
             continue
+        source = small_gicp.PointCloud(near)
         pose, _ = gicp(
-            model,
-            small_gicp.PointCloud(thinned[near]),
-            h.pose,
-            (reach * gate,),
-            config.fine_iterations,
-            kind="PLANE_ICP",
+            model, source, h.pose, (reach * gate,), config.fine_iterations, kind="PLANE_ICP"
         )
-        h.pose, h.result = _precise(model, thinned[near], pose, config.ranking_iterations)
+        h.pose, h.result = _precise(model, near, pose, config.ranking_iterations)
         h.returns_error_m = _returns_error(model, returns, h.pose)
     return sorted(candidates, key=lambda h: h.returns_error_m)
 
