@@ -20,7 +20,9 @@ from sdcnet.registration import (
     estimate_pose,
     judge,
 )
+from sdcnet.registration.choice import choose_searched
 from sdcnet.registration.observed import consistency, framed_by, observe
+from sdcnet.registration.refine import Hypothesis
 from sdcnet.registration.search import search as search_from_scratch
 from sdcnet.rigid import (
     Pose,
@@ -135,19 +137,22 @@ def test_candidates_ranked_on_a_few_returns_leave_the_answer_polished_on_more(sp
     """Each candidate's ICP moves ``max_icp_returns`` returns (here 16, with 2 cm of noise):
     enough to rank the candidates, not to place the answer; its last refinement on
     ``polish_icp_returns`` does, unless the returns lie farther from the answer than
-    ``polish_max_returns_error_m`` (here 0: never)."""
+    ``polish_max_returns_error_m`` (here 0: never); the sigma of an answer left on 16 returns
+    says it is loose."""
     mesh, _ = spacecraft
     truth = Pose(axis_angle([0.3, -1.0, 0.4], 2.2 + seed), np.array([0.8, -0.5, 120.0]))
     cloud = visible_samples(mesh, truth, seed=1)
     returns = cloud + np.random.default_rng(seed).normal(0, 0.02, cloud.shape)
-    errors = {}
+    errors, reasons = {}, {}
     for polish_within in (DEFAULT_CONFIG.polish_max_returns_error_m, 0.0):
         config = replace(
             DEFAULT_CONFIG, max_icp_returns=16, polish_max_returns_error_m=polish_within
         )
         estimate = estimate_pose(TargetModel(mesh.vertices, mesh.faces, config), cloud, returns)
         errors[polish_within] = pose_errors(estimate.pose, truth)
-        assert estimate.verdict == "reliable"
+        reasons[polish_within] = estimate.reasons
+    assert reasons[DEFAULT_CONFIG.polish_max_returns_error_m] == []  # reliable
+    assert reasons[0.0] == ["loose_rotation"]
     rotation_deg, translation_m = errors[DEFAULT_CONFIG.polish_max_returns_error_m]
     assert rotation_deg < 0.4 and translation_m < 0.005
     assert errors[0.0][0] > 0.9 and errors[0.0][1] > 0.01  # not polished: the candidates' own
@@ -307,6 +312,8 @@ GOOD = Evidence(
         ({"twins": 1}, "ambiguous", "symmetric_twins"),
         ({"runner_up_consistency": 0.88}, "ambiguous", "close_alternative"),
         ({"runner_up_consistency": None}, "reliable", None),
+        ({"rotation_sigma_deg": 2.5}, "ambiguous", "loose_rotation"),
+        ({"rotation_sigma_deg": float("inf")}, "ambiguous", "loose_rotation"),
         ({"left_init": True}, "ambiguous", "left_init"),
         ({"left_init": True, "returns": 0}, "unreliable", "too_few_returns"),
         ({"returns_misfit": True}, "unreliable", "returns_misfit"),
@@ -356,6 +363,27 @@ def test_the_search_offers_the_best_pose_turned_by_each_near_twin():
     best = hypotheses[0].pose.matrix()
     twin = Pose.from_matrix(best @ model.near_twins[0])
     assert min(rotation_angle_deg(h.pose.R, twin.R) for h in hypotheses[1:]) < 0.01
+
+
+def test_a_pose_the_returns_fit_clearly_worse_is_no_close_alternative():
+    """The completed cloud, decimetres from the surface, can find a near twin almost as
+    consistent as the truth; the returns, centimetres from it, tell them apart: the twin (and
+    a hypothesis the search found beside it) is neither an alternative nor the runner-up that
+    makes an answer ``close_alternative``. Without returns it is that runner-up."""
+    mesh = winged_box()
+    model = TargetModel(mesh.vertices, mesh.faces)
+    truth = Pose(axis_angle([0.4, 1.0, -0.2], 0.9), np.array([0.2, -0.1, 30.0]))
+    twin = Pose.from_matrix(truth.matrix() @ model.near_twins[0])
+    beside = Pose(axis_angle([0.0, 0.0, 1.0], np.radians(0.2)) @ twin.R, twin.t)
+    returns = visible_samples(mesh, truth, seed=2)[::10]
+
+    def hypotheses() -> list[Hypothesis]:
+        return [Hypothesis(truth, 0.90), Hypothesis(twin, 0.88), Hypothesis(beside, 0.87)]
+
+    told = choose_searched(model, hypotheses(), returns)
+    assert pose_errors(told.best.pose, truth)[0] < 0.5
+    assert told.alternatives == [] and told.runner_up_consistency is None
+    assert choose_searched(model, hypotheses(), None).runner_up_consistency == 0.88
 
 
 def test_a_cloud_too_small_or_too_large_or_not_finite_is_an_error(spacecraft):

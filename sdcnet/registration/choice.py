@@ -4,7 +4,8 @@
    decimetre-accurate) refine the candidates within ``returns_margin`` of the best
    consistency by point-to-plane ICP; the most consistent stays the answer unless another
    fits the returns clearly better. Those that fit about as well, far from it in rotation,
-   make the answer ``ambiguous`` (a symmetric target) and are listed as alternatives.
+   make the answer ``ambiguous`` (a symmetric target) and are listed as alternatives; those
+   they fit clearly worse are no close alternative, however consistent the cloud found them.
    The answer is then refined once more on more of the returns (``polished``).
 
 When tracking held, the tracked pose is refined on the returns, and so is the init itself (the
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import small_gicp
 
+from sdcnet.registration.config import RegistrationConfig
 from sdcnet.registration.observed import Observed, consistency, thinned_to
 from sdcnet.registration.refine import Hypothesis, gicp
 from sdcnet.registration.search import mirrored
@@ -45,7 +47,15 @@ def _explains_as_well(
     if returns is None:
         return other.consistency >= best.consistency - config.ambiguity_margin
     other.returns_error_m = _returns_error(model, returns, other.pose)
-    return other.returns_error_m <= config.returns_ambiguity_ratio * best.returns_error_m
+    return _fits_as_well(config, other.returns_error_m, best.returns_error_m)
+
+
+def _fits_as_well(config: RegistrationConfig, error_m: float, best_m: float) -> bool:
+    """Whether returns lying ``error_m`` from one pose on average fit it about as well as
+    those lying ``best_m`` from another: within ``returns_ambiguity_ratio`` of the larger of
+    ``best_m`` and ``returns_error_floor_m`` (a few millimetres apart is the refinement's
+    precision, not the poses'). A pose that does not is clearly worse."""
+    return error_m <= config.returns_ambiguity_ratio * max(best_m, config.returns_error_floor_m)
 
 
 def _icp_share(model: TargetModel, returns: np.ndarray, count: int) -> np.ndarray:
@@ -163,7 +173,8 @@ def choose_searched(
     ``reliable_min_consistency``), unless another fits the returns clearly better once
     refined on them (so near-symmetric poses do not flip at random, and a near-twin a little
     more consistent on a coarse cloud does not win over the returns); the alternatives are
-    those whose returns fit about as well (or, without returns, all of them)."""
+    those whose returns fit about as well (or, without returns, all of them), and the
+    runner-up's consistency is the best of the hypotheses the returns did not rule out."""
     config = model.config
     top = hypotheses[0].consistency
     if prior is not None and (
@@ -182,16 +193,36 @@ def choose_searched(
     # for it.
     candidates = _distinct(near_top, config.duplicate_deg)[: config.max_candidates]
     incumbent = candidates[0]
+    starts = [h.pose for h in candidates]
     ranked = _refine_on_returns(model, candidates, returns)
     own = next(h for h in ranked if _same_basin(model, h, incumbent))
-    ratio = config.returns_ambiguity_ratio
-    best = ranked[0] if ranked[0].returns_error_m * ratio < own.returns_error_m else own
+    as_well = _fits_as_well(config, own.returns_error_m, ranked[0].returns_error_m)
+    best = own if as_well else ranked[0]
     alternatives = [
         h
         for h in _distinct(ranked, config.alternative_deg)
-        if not _same_basin(model, h, best) and h.returns_error_m <= ratio * best.returns_error_m
+        if not _same_basin(model, h, best)
+        and _fits_as_well(config, h.returns_error_m, best.returns_error_m)
     ]
-    return _Choice(best, alternatives, _runner_up(model, best, hypotheses))
+    rejected = {
+        id(h): start
+        for h, start in zip(candidates, starts, strict=True)
+        if not _fits_as_well(config, h.returns_error_m, best.returns_error_m)
+    }
+    contenders = [h for h in hypotheses if not _ruled_out(model, h, rejected)]
+    return _Choice(best, alternatives, _runner_up(model, best, contenders))
+
+
+def _ruled_out(model: TargetModel, h: Hypothesis, rejected: dict[int, Pose]) -> bool:
+    """Whether the returns ruled ``h`` out: it is one of the candidates they fit clearly worse
+    than the answer (``rejected``: their poses before refinement, by id), or a hypothesis the
+    search found within ``duplicate_deg`` of one (refined once for both). Such a pose is no
+    close alternative, however consistent the completed cloud found it: the cloud is
+    decimetres from the surface, the returns centimetres."""
+    return id(h) in rejected or any(
+        rotation_angle_deg(h.pose.R, start.R) < model.config.duplicate_deg
+        for start in rejected.values()
+    )
 
 
 def _same_basin(model: TargetModel, a: Hypothesis, b: Hypothesis) -> bool:
@@ -214,7 +245,7 @@ def choose_tracked(
         own = Hypothesis(init)
         _refine_on_returns(model, [tracked], returns)
         _refine_on_returns(model, [own], returns, reach=INIT_REACH)
-        if own.returns_error_m * model.config.returns_ambiguity_ratio < tracked.returns_error_m:
+        if not _fits_as_well(model.config, tracked.returns_error_m, own.returns_error_m):
             best = own
             best.consistency = consistency(model, best.pose, observed)
     twins = _distinct([best, *mirrored(model, best, observed)], model.config.alternative_deg)

@@ -51,10 +51,20 @@ class RegistrationConfig:
     # docs/pose/README.md); Gaussian range noise of sigma gives about 0.8 sigma, so a LIDAR
     # noisier than ~3.5 cm needs a larger value
     reliable_max_returns_error_m: float = 0.03
-    reliable_min_lead: float = 0.06  # close_alternative: a pose >= alternative_deg away within this
+    # close_alternative: a pose >= alternative_deg away within this consistency, unless the
+    # returns fit it clearly worse (returns_ambiguity_ratio)
+    reliable_min_lead: float = 0.06
+    # loose_rotation: the answer's rotation sigma (``PoseEstimate.rotation_sigma_deg``) above
+    # this, degrees: it cannot vouch for the 2 degrees a right answer is held to. Right answers
+    # marked reliable measured 0.18 median, 1.45 at most; two wrong ones 2.9 and 3.1 (780
+    # suite frames: docs/pose/README.md)
+    reliable_max_rotation_sigma_deg: float = 2.0
     max_span_of_longest: float = 20.0  # a cloud wider than this (x L): no pose
     returns_max_distance_m: float = 0.5  # correspondence gate of the returns' refinement
     returns_ambiguity_ratio: float = 1.25  # alternatives whose returns fit this close
+    # ... to the larger of the answer's fit and this, metres: noise-free returns fit a pose
+    # within a millimetre and its symmetric twin, refined for fewer iterations, within 3
+    returns_error_floor_m: float = 0.004
     returns_voxel_of_longest: float = 1 / 200
     # the returns' mean distance to the target (truncated) at the search's answer above which
     # the search runs on the returns too: right answers 0.008 m median, wrong ones >= 0.02

@@ -56,12 +56,18 @@ class PoseEstimate:
     @property
     def rotation_sigma_deg(self) -> float:
         """Standard deviation of the rotation along its least certain axis, degrees."""
-        return float(np.degrees(_largest_deviation(self.covariance[:3, :3])))
+        return rotation_sigma_deg(self.covariance)
 
     @property
     def translation_sigma_m(self) -> float:
         """Standard deviation of t along its least certain axis, metres."""
         return _largest_deviation(self.covariance[3:, 3:])
+
+
+def rotation_sigma_deg(covariance: np.ndarray) -> float:
+    """Standard deviation (degrees) of the rotation along its least certain axis, of a pose's
+    (6, 6) ``covariance`` (rotation vector in radians first)."""
+    return float(np.degrees(_largest_deviation(covariance[:3, :3])))
 
 
 def _largest_deviation(block: np.ndarray) -> float:
@@ -181,6 +187,7 @@ def estimate_pose(
     voxel = model.longest_m * config.voxel_of_longest
     fitness, rmse = surface_fit(model, observed.points, best.pose, 3 * voxel)
     left_init = init is not None and not in_basin(model, best.pose, init)
+    pose_covariance = covariance(best.result, best.pose)
     evidence = Evidence(
         consistency=best.consistency,
         runner_up_consistency=choice.runner_up_consistency,
@@ -189,6 +196,7 @@ def estimate_pose(
         returns=0 if returns is None else len(returns),
         left_init=left_init,
         returns_misfit=_returns_misfit(best, config),
+        rotation_sigma_deg=rotation_sigma_deg(pose_covariance),
     )
     verdict, reasons = judge(evidence, config)
     timings["total_ms"] = (time.perf_counter() - started) * 1e3
@@ -201,7 +209,7 @@ def estimate_pose(
         returns_rmse_m=choice.returns_rmse_m,
         converged=bool(best.result.converged),
         consistency=best.consistency,
-        covariance=covariance(best.result, best.pose),
+        covariance=pose_covariance,
         ambiguous=bool(choice.alternatives),
         alternatives=choice.alternatives,
         hypotheses=hypotheses,

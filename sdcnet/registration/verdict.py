@@ -1,6 +1,7 @@
 """The verdict on an answer (``judge``): "reliable" (use it as it is), "ambiguous" (a
-plausible pose, but another competes: a symmetric twin, a close runner-up, the track's init)
-or "unreliable" (the cloud does not support it), with the reasons."""
+plausible pose, but another competes: a symmetric twin, a close runner-up, the track's init;
+or the frame pins its rotation loosely) or "unreliable" (the cloud does not support it), with
+the reasons."""
 
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ REASONS: dict[str, tuple[bool, str]] = {
         "other poses (a symmetric or near-symmetric target) fit the frame as well",
     ),
     "close_alternative": (False, "another pose fits the frame almost as well"),
+    "loose_rotation": (False, "the frame pins the rotation loosely: see its sigma"),
     "left_init": (False, "the answer left the basin of the tracker's init"),
 }
 
@@ -35,6 +37,7 @@ class Evidence:
     returns: int
     left_init: bool
     returns_misfit: bool = False  # the returns' distance above ``reliable_max_returns_error_m``
+    rotation_sigma_deg: float = 0.0  # the answer's, along its least certain axis
 
 
 def judge(evidence: Evidence, config: RegistrationConfig = DEFAULT_CONFIG) -> tuple[str, list[str]]:
@@ -51,6 +54,7 @@ def judge(evidence: Evidence, config: RegistrationConfig = DEFAULT_CONFIG) -> tu
         "symmetric_twins": e.twins > 0,
         "close_alternative": e.twins == 0 and lead is not None and lead < config.reliable_min_lead,
         "left_init": e.left_init,
+        "loose_rotation": e.rotation_sigma_deg > config.reliable_max_rotation_sigma_deg,
     }
     reasons = [code for code, holds in checks.items() if holds]
     if any(REASONS[code][0] for code in reasons):
