@@ -236,6 +236,7 @@ class _SelfFit:
         self.floor = self.spread(np.eye(4))
 
     def moved(self, T: np.ndarray) -> np.ndarray:
+        """The probe's points moved by ``T``, (N, 3) metres."""
         return self.points @ T[:3, :3].T + T[:3, 3]
 
     def coarse_spread(self, T: np.ndarray) -> float:
