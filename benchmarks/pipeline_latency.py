@@ -8,7 +8,10 @@ What the service does between decoding and encoding a frame, on the robustness s
 2048 px, docking to 300 m): crop to the LIDAR-bounded region, resample to the working grid,
 onnxruntime, paste back, back-project the cloud (at most ``MAX_POINTS``, as the service's
 default), with malloc set as the service sets it
-(``sdcnet.allocator``). Per condition and over all frames: median,
+(``sdcnet.allocator``), at the working pixels ``sdc-serve`` chooses on this CPU
+(``sdcnet.frame_budget.calibrate``, measured first) and, beside it, at the model's own budget
+(``--shares``: at other shares of it too; with two or more, the line through their p95, the
+constants ``sdcnet.frame_budget`` holds). Per condition and over all frames: median,
 p95 and max in milliseconds, p95 / median, against the 100 ms a 10 Hz LIDAR leaves. With
 ``--previous COMMIT``, the same frames through the previous shipped model and its own pipeline
 (``benchmarks/previous_model.py``, run after this one in the same command). Writes
@@ -31,6 +34,14 @@ from benchmarks.common import DOCS, cpu_description, write_markdown
 from sdcnet.allocator import configure_malloc
 from sdcnet.camera import Intrinsics
 from sdcnet.dataset_format import SampleStore
+from sdcnet.frame_budget import (
+    DEADLINE_SHARE,
+    REFERENCE_MS,
+    SUITE_P95_MS,
+    FrameBudget,
+    calibrate,
+    frame_milliseconds,
+)
 from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import complete
 from sdcnet.pointcloud import MAX_POINTS, back_project, cloud_stride
@@ -39,39 +50,40 @@ from sdcnet.runtime.onnx import OnnxModel
 BUDGET_MS = 100.0
 
 
+#: A model and the working pixels it is run at.
+Runner = tuple[OnnxModel, int]
+
+
 def time_frames(
-    models: dict[str, OnnxModel], store: SampleStore, repeats: int
+    runners: dict[str, Runner], store: SampleStore, repeats: int
 ) -> dict[str, list[float]]:
     """Milliseconds of each frame of ``store`` (each one ``repeats`` times) through the
-    pipeline, the back-projection and the points' normals, per model, after a warm-up. The
-    models take turns frame by frame, so that a machine that slows down or speeds up weighs on
+    pipeline, the back-projection and the points' normals, per runner, after a warm-up. The
+    runners take turns frame by frame, so that a machine that slows down or speeds up weighs on
     each alike, and which of them goes first moves on with every frame: the first to complete
     a frame can pay for memory the next ones find ready (a 2048 x 2048 frame's first sigma
     paste-back took 15-34 ms, the same copy 0.8 ms on the next frame)."""
     samples = [store.load(r) for r in store.records]
 
-    def run(model: OnnxModel, sample) -> None:
+    def run(runner: Runner, sample) -> None:
+        model, work_pixels = runner
         K = Intrinsics(**sample.meta["intrinsics"])
-        info = model.info
-        result = complete(
-            model.run, sample.gray, sample.sparse, K.fx, info.stride, info.work_pixels
-        )
+        result = complete(model.run, sample.gray, sample.sparse, K.fx, model.stride, work_pixels)
         valid = result.mask & (result.depth > 0)
         stride = cloud_stride(valid, MAX_POINTS)  # the service's cloud at its default
         back_project(result.depth, valid, K, stride=stride)
         cloud_normals(result, valid, K, stride=stride)
 
-    for model in models.values():
+    for runner in runners.values():
         for sample in samples[:2]:
-            run(model, sample)
-    times: dict[str, list[float]] = {name: [] for name in models}
-    names = list(models)
+            run(runner, sample)
+    times: dict[str, list[float]] = {name: [] for name in runners}
+    names = list(runners)
     for _ in range(repeats):
         for i, sample in enumerate(samples):
             for name in names[i % len(names) :] + names[: i % len(names)]:
-                model = models[name]
                 start = time.perf_counter()
-                run(model, sample)
+                run(runners[name], sample)
                 times[name].append((time.perf_counter() - start) * 1e3)
     return times
 
@@ -109,6 +121,37 @@ def row(name: str, condition: str, s: dict[str, float]) -> str:
     )
 
 
+def suite_line(results: dict, shares: list[float]) -> tuple[float, float] | None:
+    """(a, b): the least-squares line p95 = a + b * share through the p95 over all frames of
+    --onnx at each of ``shares`` of its budget; None for fewer than two shares."""
+    if len(set(shares)) < 2:
+        return None
+    p95 = [results[f"this model at {share:g} of its budget"]["all"]["p95"] for share in shares]
+    b, a = np.polyfit(shares, p95, 1)
+    return round(float(a), 1), round(float(b), 1)
+
+
+def budget_note(budget: FrameBudget, reference_ms: float, fit: tuple[float, float] | None) -> str:
+    """What the calibration chose here (``sdcnet.frame_budget``), as sdc-serve does at start-up,
+    and the constants this run measured."""
+    share = budget.work_pixels / budget.model_work_pixels
+    lines = [
+        f"**This model's frames** keep to {budget.work_pixels} working pixels ({share:.2f} of the "
+        f"model's {budget.model_work_pixels}): `sdcnet.frame_budget.calibrate` on this CPU, as "
+        f"`sdc-serve` does at start-up, for a p95 within {DEADLINE_SHARE:g} of "
+        f"{budget.deadline_ms:g} ms. The reference frame took {budget.reference_ms:.1f} ms at "
+        f"the model's budget then, {reference_ms:.1f} ms after the run (the constants' CPU: "
+        f"{REFERENCE_MS:g} ms); expected p95 {budget.expected_p95_ms:.1f} ms."
+    ]
+    if fit:
+        lines.append(
+            f"The line through the p95 of all frames at each share of the budget: "
+            f"{fit[0]:.1f} + {fit[1]:.1f} x share ms (`sdcnet.frame_budget.SUITE_P95_MS` "
+            f"holds {SUITE_P95_MS[0]:g} + {SUITE_P95_MS[1]:g} x share)."
+        )
+    return " ".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -123,20 +166,37 @@ def main(argv: list[str] | None = None) -> int:
         help="other ONNX models of this pipeline, timed in turn with --onnx frame by frame",
     )
     p.add_argument("--previous", help="commit of the previous shipped model, run beside it")
+    p.add_argument(
+        "--shares",
+        nargs="*",
+        default=[1.0],
+        type=float,
+        help="--onnx also at these shares of its own budget, in turn with the rest; with two or "
+        "more, the line through their p95 over all frames and the reference frame's ms: "
+        "sdcnet.frame_budget's constants for this CPU",
+    )
+    p.add_argument("--deadline-ms", type=float, default=BUDGET_MS, help="the service's --frame-ms")
     p.add_argument("--repeats", type=int, default=2, help="passes over the frames")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
 
     configure_malloc()  # as sdc-serve does
-    models = {
-        name: OnnxModel(path, provider="cpu", threads=args.threads, spin_wait=False)
-        for name, path in [("this model", args.onnx), *((p.stem, p) for p in args.beside)]
-    }
-    model = models["this model"]
+    model, *beside = (
+        OnnxModel(path, provider="cpu", threads=args.threads, spin_wait=False)
+        for path in [args.onnx, *args.beside]
+    )
+    own = model.info.work_pixels
+    budget = calibrate(model.run, model.stride, own, args.deadline_ms)
+    runners: dict[str, Runner] = {"this model": (model, budget.work_pixels)}
+    for share in args.shares:
+        runners[f"this model at {share:g} of its budget"] = (model, int(share * own))
+    for path, other in zip(args.beside, beside, strict=True):
+        runners[path.stem] = (other, other.info.work_pixels)
     conditions = sorted(d for d in args.data.iterdir() if (d / "manifest.jsonl").exists())
-    timed = {c.name: time_frames(models, SampleStore(c), args.repeats) for c in conditions}
+    timed = {c.name: time_frames(runners, SampleStore(c), args.repeats) for c in conditions}
+    reference_ms = frame_milliseconds(model.run, model.stride, own)
     results = {}
-    for name in models:
+    for name in runners:
         times = {c: ts[name] for c, ts in timed.items()}
         results[name] = {c: stats(t) for c, t in times.items()}
         results[name]["all"] = stats([t for ts in times.values() for t in ts])
@@ -151,12 +211,16 @@ def main(argv: list[str] | None = None) -> int:
         if (s := by_condition.get(condition))
     ]
     print("\n".join(rows))
+    fit = suite_line(results, args.shares)
+    calibration_note = budget_note(budget, reference_ms, fit)
+    print(calibration_note)
     command = " ".join(
         [
             "python -m benchmarks.pipeline_latency",
             *("--onnx", str(args.onnx), "--data", str(args.data)),
             *(["--beside", *map(str, args.beside)] if args.beside else []),
             *(["--previous", args.previous] if args.previous else []),
+            *(["--shares", *map(str, args.shares)] if args.shares != [1.0] else []),
         ]
     )
     beside_note = (
@@ -176,15 +240,20 @@ def main(argv: list[str] | None = None) -> int:
 Measured on {cpu_description()}, onnxruntime with {args.threads} intra-op threads (idle threads
 sleep, as in the service), {args.repeats} passes over the frames of `{args.data}` (the
 robustness suite's conditions: `sdc-eval robustness`). Per frame: crop to the LIDAR-bounded
-region, resample to the working grid ({model.info.work_pixels} pixels), the network, paste back,
+region, resample to the working grid, the network, paste back,
 back-project the cloud: the service's work between decode and encode.{beside_note}{previous_note}
 Regenerate: `{command}`.
+
+{calibration_note}
 
 | condition | model | frames | median ms | p95 ms | max ms | p95 / median | {BUDGET_MS:.0f} ms |
 |---|---|---|---|---|---|---|---|
 {chr(10).join(rows)}
 """
     print(write_markdown("pipeline_latency", "The cost of every frame, per condition", body))
+    results["frame budget"] = {**budget.describe(), "reference_ms_after": reference_ms}
+    if fit:
+        results["frame budget"]["suite_p95_line_ms"] = fit
     (DOCS / "pipeline_latency.json").write_text(json.dumps(results, indent=1))
     return 0
 

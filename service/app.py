@@ -18,12 +18,19 @@ from typing import Any
 from fastapi import FastAPI
 
 from sdcnet import __version__
+from sdcnet.frame_budget import FrameBudget
 from sdcnet.runtime.interface import ModelLoadError, Runtime
 from sdcnet.runtime.registry import load_runtime
 from sdcnet.service.admission import Admission
 from sdcnet.service.camera import ServiceCamera, configured_camera
 from sdcnet.service.errors import install_error_handlers
-from sdcnet.service.inference import SELF_TEST_SIZE, Engine, self_test, warm_up
+from sdcnet.service.inference import (
+    SELF_TEST_SIZE,
+    Engine,
+    choose_frame_budget,
+    self_test,
+    warm_up,
+)
 from sdcnet.service.metrics import ServiceMetrics
 from sdcnet.service.pose import configured_targets
 from sdcnet.service.routes import ROUTERS, v2_infer
@@ -93,11 +100,13 @@ def create_app(
     model: Runtime | None = None,
     targets: dict[str, Target] | None = None,
     camera: ServiceCamera | None = None,
+    frame_budget: FrameBudget | None = None,
 ) -> FastAPI:
     """The service. ``settings`` default to the environment; ``model`` (already loaded)
     defaults to loading ``settings.model_path`` at start-up, ``targets`` (already prepared)
     to preparing those of ``settings.targets``, ``camera`` (already loaded) to loading
-    ``settings.camera``."""
+    ``settings.camera``, ``frame_budget`` (already chosen) to choosing it by the settings
+    (``choose_frame_budget``)."""
     settings = settings or Settings()
     service_metrics = ServiceMetrics()
 
@@ -121,7 +130,19 @@ def create_app(
         )
         app.state.targets = configured_targets(settings) if targets is None else targets
         app.state.camera = configured_camera(settings) if camera is None else camera
-        app.state.engine = Engine(loaded, settings.max_points)
+        chosen = frame_budget or choose_frame_budget(
+            loaded, settings.work_pixels, settings.frame_ms
+        )
+        logger.info(
+            "frames get %d working pixels (the model's %d; reference frame %s ms, p95 "
+            "expected %s ms, --frame-ms %g)",
+            chosen.work_pixels,
+            chosen.model_work_pixels,
+            chosen.reference_ms,
+            chosen.expected_p95_ms,
+            chosen.deadline_ms,
+        )
+        app.state.engine = Engine(loaded, settings.max_points, chosen)
         yield
         app.state.engine = None  # not ready while shutting down
 

@@ -21,6 +21,7 @@ from sdcnet.runtime.interface import ModelLoadError
 from sdcnet.service.app import create_app, load_model
 from sdcnet.service.budget import budget
 from sdcnet.service.camera import configured_camera
+from sdcnet.service.inference import choose_frame_budget
 from sdcnet.service.pose import configured_targets
 from sdcnet.service.protocol import with_head_timeout
 from sdcnet.service.settings import Settings
@@ -34,6 +35,8 @@ FLAGS = [
     ("--runtime", "runtime", str),
     ("--provider", "provider", str),
     ("--threads", "threads", int),
+    ("--frame-ms", "frame_ms", float),
+    ("--work-pixels", "work_pixels", int),
     ("--targets", "targets", Path),
     ("--camera", "camera", Path),
     ("--spin-wait", "spin_wait", str),  # true / false, parsed by the settings
@@ -126,6 +129,7 @@ def serve(args: argparse.Namespace) -> int:
     try:
         camera = configured_camera(settings)
         model = load_model(settings)
+        frame_budget = choose_frame_budget(model, settings.work_pixels, settings.frame_ms)
         targets = configured_targets(settings)
     except (CalibrationError, ModelLoadError, TargetError) as exc:
         print(f"sdc-serve: {exc}", file=sys.stderr)
@@ -134,7 +138,7 @@ def serve(args: argparse.Namespace) -> int:
     logger.info(budget(settings).describe(settings))
     try:
         uvicorn.run(
-            create_app(settings, model, targets, camera),
+            create_app(settings, model, targets, camera, frame_budget),
             host=settings.host,
             port=settings.port,
             log_level=settings.log_level,

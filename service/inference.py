@@ -11,6 +11,7 @@ phase is timed. ``complete_frame`` is the one path both protocols share.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import threading
 import time
@@ -23,6 +24,7 @@ import numpy as np
 from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.caveats import frame_caveats
 from sdcnet.compact import mask_window
+from sdcnet.frame_budget import FrameBudget, calibrate, fixed
 from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import (
@@ -45,6 +47,8 @@ from sdcnet.service.schemas import (
     Timings,
 )
 from sdcnet.service.spool import Spool, SpooledResponse
+
+logger = logging.getLogger("sdcnet.service")
 
 PHASES = ("decode", "queue", "inference", "encode")
 SELF_TEST_SIZE = 64  # pixels, side of the frame the model completes once at start-up
@@ -90,25 +94,38 @@ class PhaseTimer:
 class Engine:
     """The model, loaded once, run one request at a time: the runtime already spreads one
     inference over all its intra-op threads, so running two at once only makes both slower;
-    and the most points a frame's cloud holds (``max_points``: ``sdcnet.pointcloud``)."""
+    the working pixels a frame gets (``frame_budget``: ``sdcnet.frame_budget``, default the
+    model's own) and the most points a frame's cloud holds (``max_points``:
+    ``sdcnet.pointcloud``)."""
 
-    def __init__(self, model: Runtime, max_points: int = MAX_POINTS):
+    def __init__(
+        self,
+        model: Runtime,
+        max_points: int = MAX_POINTS,
+        frame_budget: FrameBudget | None = None,
+    ):
         self.model = model
         self.max_points = max_points
+        own = model.info.work_pixels
+        self.frame_budget = frame_budget or fixed(own, own)
         self._lock = threading.Lock()
 
     def complete(
         self, gray: np.ndarray, sparse: np.ndarray, focal_px: float, timer: PhaseTimer
     ) -> Completion:
         """Complete a frame of a camera of focal length ``focal_px`` (pixels), on the model's
-        working-pixel budget (``sdcnet.pipeline``)."""
+        frame budget (``sdcnet.pipeline``)."""
         with timer("queue"):
             self._lock.acquire()
         try:
             with timer("inference"):
-                info = self.model.info
                 return complete(
-                    self.model.run, gray, sparse, focal_px, info.stride, info.work_pixels
+                    self.model.run,
+                    gray,
+                    sparse,
+                    focal_px,
+                    self.model.info.stride,
+                    self.frame_budget.work_pixels,
                 )
         finally:
             self._lock.release()
@@ -284,6 +301,32 @@ def warm_up(model: Runtime, side: int) -> None:
         sparse = np.zeros((frame_side, frame_side), np.float32)
         sparse[::WARM_UP_RETURN_STEP, ::WARM_UP_RETURN_STEP] = 100.0
         complete(model.run, gray, sparse, 1000.0, model.stride, model.info.work_pixels)
+
+
+def choose_frame_budget(model: Runtime, work_pixels: int | None, frame_ms: float) -> FrameBudget:
+    """The working pixels the service's frames get: ``work_pixels`` when set (at most the
+    model's own), else the model's own budget cut to keep this CPU's p95 frame within
+    ``frame_ms`` (``sdcnet.frame_budget.calibrate``: about 0.4 s on two cores), or, for
+    ``frame_ms`` 0, the model's own; ``ModelLoadError`` for more pixels than the model's."""
+    own = model.info.work_pixels
+    if work_pixels is not None:
+        try:
+            return fixed(work_pixels, own)
+        except ValueError as exc:
+            raise ModelLoadError(f"{model.path}: {exc}") from None
+    if frame_ms == 0:
+        return fixed(own, own)
+    chosen = calibrate(model.run, model.stride, own, frame_ms)
+    if not chosen.met:
+        logger.warning(
+            "this CPU completes the reference frame in %.0f ms: even at %d working pixels, "
+            "half the model's, frames are expected to take %.0f ms at p95, over --frame-ms %g",
+            chosen.reference_ms,
+            chosen.work_pixels,
+            chosen.expected_p95_ms,
+            frame_ms,
+        )
+    return chosen
 
 
 @dataclass(frozen=True)

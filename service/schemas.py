@@ -193,6 +193,27 @@ class TargetInfo(BaseModel):
     )
 
 
+class FrameBudgetInfo(BaseModel):
+    """How the working pixels a frame gets were chosen (``sdcnet.frame_budget``)."""
+
+    work_pixels: int = Field(description="what frames get at most")
+    model_work_pixels: int = Field(description="the model's own budget, trained and timed for")
+    deadline_ms: float = Field(
+        description="the p95 in-process milliseconds held to (--frame-ms); 0: none"
+    )
+    reference_ms: float | None = Field(
+        description="this CPU's milliseconds for the reference frame at the model's budget, "
+        "measured at start-up; null: not measured (a fixed budget)"
+    )
+    expected_p95_ms: float | None = Field(
+        description="the p95 frame expected at work_pixels on this CPU; null: not measured"
+    )
+    met: bool | None = Field(
+        description="whether expected_p95_ms is within deadline_ms; false: this CPU is too "
+        "slow even at half the model's budget; null: not measured"
+    )
+
+
 class ModelMetadata(BaseModel):
     """``GET /model`` and ``GET /v2/models/sdcnet``: KServe v2 model metadata plus sdcnet's."""
 
@@ -209,7 +230,11 @@ class ModelMetadata(BaseModel):
         description="pixels the network sees per frame at most, whatever the camera: the "
         "spacecraft's crop is resampled to about this many, fewer (down to half) where the "
         "frame's own work at its resolution is large (a large crop, many points), so that "
-        "every frame keeps to one cost"
+        "every frame keeps to one cost; the model's own, or fewer on a CPU too slow for "
+        "frame_budget's deadline"
+    )
+    frame_budget: FrameBudgetInfo = Field(
+        description="how work_pixels was chosen (sdc-serve --frame-ms, --work-pixels)"
     )
     intrinsics: CameraIntrinsics = Field(
         description="the paper's camera at 1024 x 1024: requests' default when no camera is "

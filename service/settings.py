@@ -62,6 +62,21 @@ class Settings(BaseSettings):
         "leave the CPUs to the request's own decoding, encoding and HTTP, and to the other "
         "processes of a shared machine or a CPU quota",
     )
+    frame_ms: float = Field(
+        default=100.0,
+        ge=0,
+        description="milliseconds a frame's in-process answer (the pipeline, its cloud and "
+        "normals) is held to at p95; at start-up the service times its CPU on a reference "
+        "frame and gives frames fewer working pixels than the model's where this CPU is too "
+        "slow for it (down to half: sdcnet.frame_budget, GET /model's frame_budget); 0: the "
+        "model's own budget, unmeasured. The LIDAR's period: 100 ms at 10 Hz",
+    )
+    work_pixels: int | None = Field(
+        default=None,
+        ge=1,
+        description="working pixels a frame gets at most, fixed (at most the model's own); "
+        "overrides frame_ms; default: frame_ms's measurement",
+    )
     targets: Path | None = Field(
         default=None,
         description="folder of known targets' meshes (STL, OBJ, PLY, glTF/GLB) with a "

@@ -8,11 +8,17 @@ there, so a service or client test that reached for torch or the generator fails
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 from tests.support.models import tiny_model
+
+# Every service the tests start, in process or not, keeps its model's own budget of working
+# pixels, so that its answers are the in-process pipeline's on any machine; the budget a slow
+# CPU would get instead is tested on its own (tests/test_frame_budget.py, which sets it).
+os.environ["SDCNET_FRAME_MS"] = "0"
 
 #: Test modules of training, evaluation, export and the generator (torch, embreex).
 NEEDS_TRAINING = {

@@ -151,6 +151,12 @@ CASES: dict[str, tuple[str | None, list[str], dict[str, str], str]] = {
     ),
     "invalid_setting": ("good", [], {"SDCNET_MAX_IN_FLIGHT": "0"}, "sdc-serve: invalid setting"),
     "busy_port": ("good", ["--port", "{busy_port}"], {}, "sdc-serve: cannot serve on"),
+    "more_working_pixels_than_the_models": (
+        "good",
+        ["--work-pixels", "1000000000"],
+        {},
+        "work_pixels must be between 1 and the model's",
+    ),
     # targets manifests: types checked, files of the folder only (a crash with exit 70, and
     # meshes loaded from outside the folder, before), no mesh without area
     "targets_file_not_text": (

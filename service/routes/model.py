@@ -11,6 +11,7 @@ from sdcnet.service.errors import ERROR_RESPONSES, V2_ERROR_RESPONSES
 from sdcnet.service.schemas import (
     CameraInfo,
     CameraIntrinsics,
+    FrameBudgetInfo,
     ModelMetadata,
     ServerMetadata,
     SizedIntrinsics,
@@ -78,7 +79,8 @@ async def model_metadata(
         provider=model.provider,
         threads=model.threads,
         stride=info.stride,
-        work_pixels=info.work_pixels,
+        work_pixels=engine.frame_budget.work_pixels,
+        frame_budget=FrameBudgetInfo(**engine.frame_budget.describe()),
         intrinsics=CameraIntrinsics(**K.pinhole_dict()),
         default_intrinsics=SizedIntrinsics(**default.as_dict()),
         camera=None if camera is None else CameraInfo(**camera.describe()),

@@ -31,11 +31,14 @@ class Service:
 
 @contextmanager
 def service_process(model: Path, log: Path, *flags: str) -> Iterator[Service]:
-    """Start ``sdc-serve`` on a free port of 127.0.0.1 with ``flags`` (after ``--threads 1``,
-    which a ``--threads`` flag overrides); yield it once ``/ready`` answers 200; stop it
-    afterwards. Its output goes to ``log``."""
+    """Start ``sdc-serve`` on a free port of 127.0.0.1 with ``flags`` (after ``--threads 1``
+    and ``--frame-ms 0``, which flags of their own override); yield it once ``/ready``
+    answers 200; stop it afterwards. Its output goes to ``log``. ``--frame-ms 0`` keeps the
+    model's own budget, so that the service answers as the in-process pipeline does on any
+    machine, rather than fewer working pixels on a slow one (``sdcnet.frame_budget``)."""
     command = [sys.executable, "-m", "sdcnet.service", "--model", str(model)]
-    command += ["--host", "127.0.0.1", "--port", "0", "--threads", "1", *flags]
+    command += ["--host", "127.0.0.1", "--port", "0", "--threads", "1", "--frame-ms", "0"]
+    command += flags
     with log.open("w") as out:
         process = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
     try:

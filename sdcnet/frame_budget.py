@@ -1,0 +1,159 @@
+"""The working pixels a frame gets on this machine: the model's own budget, or fewer where
+this CPU is too slow to answer every frame within the LIDAR's period.
+
+A model file carries the working pixels it was trained and timed for (``work_pixels``, chosen
+on the AMD EPYC docs/benchmarks.md names, where the robustness suite's p95 frame took 78-87
+ms). On a slower CPU the same frames take longer: on an Intel Xeon of two cores that p95 was
+106-115 ms (docs/development.md, "Measurements"). So the service measures its CPU once, at
+start-up (``calibrate``), and cuts the budget where it must:
+
+- the suite's p95 frame, on the CPU the constants were measured on, takes about
+  ``SUITE_P95_MS[0] + SUITE_P95_MS[1] * share`` milliseconds at a share of the model's
+  budget: the network and the working grid's work scale with the working pixels, a frame's
+  own work at its resolution does not (``python -m benchmarks.pipeline_latency --shares``);
+- a synthetic frame (``reference_frame``: a lit disc, returns on a grid across it), completed,
+  back-projected and given its normals as every answer is, tells how much slower or faster
+  this CPU is than that one (its milliseconds over ``REFERENCE_MS``, the same frame's there);
+- the budget is the largest share whose p95, so scaled, is within ``DEADLINE_SHARE`` of the
+  deadline, never more than the model's budget and never fewer than ``MIN_SHARE`` of it: a
+  CPU that slow misses the deadline, and ``FrameBudget.met`` says so.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from sdcnet.camera import Intrinsics
+from sdcnet.normals import cloud_normals
+from sdcnet.pipeline import ModelFn, complete
+from sdcnet.pointcloud import MAX_POINTS, back_project, cloud_stride
+
+#: The robustness suite's p95 frame, milliseconds, as ``a + b * share`` of the model's budget,
+#: and the reference frame's milliseconds at the whole budget, on one CPU (docs/development.md,
+#: "Measurements").
+SUITE_P95_MS = (22.9, 84.0)
+REFERENCE_MS = 88.0
+#: Share of the deadline the expected p95 is held to: the rest is the machine's noise.
+DEADLINE_SHARE = 0.9
+#: Fewest working pixels, as a share of the model's, a calibration chooses: the least the
+#: shipped network was trained at (``training.dataset.BUDGET_JITTER``).
+MIN_SHARE = 0.5
+#: Side of the reference frame, pixels; the disc's radius, the returns' spacing (pixels) and
+#: their depth (metres) ...
+REFERENCE_SIDE = 1024
+REFERENCE_RADIUS = 300
+REFERENCE_RETURN_STEP = 8
+REFERENCE_DEPTH_M = 20.0
+#: ... and the focal length it is seen with (pixels).
+REFERENCE_FOCAL_PX = 1000.0
+#: Timed runs at each budget (their median counts), after one untimed run.
+REPEATS = 5
+
+
+@dataclass(frozen=True)
+class FrameBudget:
+    """The working pixels frames get (``work_pixels``) and how they were chosen: the model's
+    own (``model_work_pixels``), the deadline (``deadline_ms``; 0 when none was set), the
+    reference frame's milliseconds at the model's budget on this CPU, the suite's p95 frame
+    expected at ``work_pixels`` (``expected_p95_ms``) and whether it is within the deadline
+    (None when nothing was measured)."""
+
+    work_pixels: int
+    model_work_pixels: int
+    deadline_ms: float = 0.0
+    reference_ms: float | None = None
+    expected_p95_ms: float | None = None
+    met: bool | None = None
+
+    def describe(self) -> dict:
+        """Plain values (JSON-ready)."""
+        return asdict(self)
+
+
+def fixed(work_pixels: int, model_work_pixels: int) -> FrameBudget:
+    """A budget set by the operator (or the model's own), not measured."""
+    if not 0 < work_pixels <= model_work_pixels:
+        raise ValueError(
+            f"work_pixels must be between 1 and the model's {model_work_pixels}, not {work_pixels}"
+        )
+    return FrameBudget(work_pixels, model_work_pixels)
+
+
+def reference_frame() -> tuple[np.ndarray, np.ndarray, Intrinsics]:
+    """(gray uint8, sparse metres, intrinsics): a lit disc of ``REFERENCE_RADIUS`` pixels in a
+    ``REFERENCE_SIDE`` square frame, shaded along a slope, with returns every
+    ``REFERENCE_RETURN_STEP`` pixels on it at about ``REFERENCE_DEPTH_M``. Deterministic."""
+    side, radius = REFERENCE_SIDE, REFERENCE_RADIUS
+    rows, cols = np.mgrid[0:side, 0:side].astype(np.float32)
+    centre = side / 2
+    disc = (rows - centre) ** 2 + (cols - centre) ** 2 <= radius**2
+    slope = (cols - centre) / radius  # -1 .. 1 across the disc
+    gray = np.where(disc, 120 + 60 * slope, 0).astype(np.uint8)
+    depth = np.where(disc, REFERENCE_DEPTH_M + 2.0 * slope, 0).astype(np.float32)
+    sparse = np.zeros_like(depth)
+    step = REFERENCE_RETURN_STEP
+    sparse[::step, ::step] = depth[::step, ::step]
+    K = Intrinsics(REFERENCE_FOCAL_PX, REFERENCE_FOCAL_PX, centre, centre, side, side)
+    return gray, sparse, K
+
+
+def frame_milliseconds(model_fn: ModelFn, stride: int, work_pixels: int) -> float:
+    """Median milliseconds of the reference frame through the whole in-process answer (the
+    pipeline, the cloud at the service's default ``MAX_POINTS``, its normals) at
+    ``work_pixels``, over ``REPEATS`` runs after one untimed run."""
+    gray, sparse, K = reference_frame()
+
+    def answer() -> None:
+        result = complete(model_fn, gray, sparse, K.fx, stride, work_pixels)
+        valid = result.mask & (result.depth > 0)
+        step = cloud_stride(valid, MAX_POINTS)
+        back_project(result.depth, valid, K, stride=step)
+        cloud_normals(result, valid, K, stride=step)
+
+    answer()
+    times = []
+    for _ in range(REPEATS):
+        start = time.perf_counter()
+        answer()
+        times.append((time.perf_counter() - start) * 1e3)
+    return statistics.median(times)
+
+
+def share_within(reference_ms: float, deadline_ms: float) -> float:
+    """The share of the model's budget (``MIN_SHARE`` to 1) whose expected p95 on a CPU that
+    completes the reference frame in ``reference_ms`` (``expected_p95_ms``) is within
+    ``DEADLINE_SHARE`` of ``deadline_ms``."""
+    a, b = SUITE_P95_MS
+    share = (DEADLINE_SHARE * deadline_ms * REFERENCE_MS / reference_ms - a) / b
+    return float(min(1.0, max(MIN_SHARE, share)))
+
+
+def expected_p95_ms(reference_ms: float, share: float) -> float:
+    """The suite's p95 frame, milliseconds, at ``share`` of the model's budget on a CPU that
+    completes the reference frame in ``reference_ms``."""
+    a, b = SUITE_P95_MS
+    return reference_ms / REFERENCE_MS * (a + b * share)
+
+
+def calibrate(
+    model_fn: ModelFn, stride: int, model_work_pixels: int, deadline_ms: float
+) -> FrameBudget:
+    """The budget that keeps this machine's p95 frame within ``deadline_ms``: the reference
+    frame timed at the model's budget (about 0.4 s on two cores), then ``share_within``;
+    rounded down to a whole number of pixels."""
+    reference_ms = frame_milliseconds(model_fn, stride, model_work_pixels)
+    share = share_within(reference_ms, deadline_ms)
+    expected = expected_p95_ms(reference_ms, share)
+    return FrameBudget(
+        work_pixels=math.floor(share * model_work_pixels),
+        model_work_pixels=model_work_pixels,
+        deadline_ms=deadline_ms,
+        reference_ms=round(reference_ms, 3),
+        expected_p95_ms=round(expected, 3),
+        met=expected <= deadline_ms,
+    )

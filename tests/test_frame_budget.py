@@ -1,0 +1,125 @@
+"""The working pixels a frame gets on this CPU (``sdcnet.frame_budget``), and the service's
+``--frame-ms`` / ``--work-pixels``: fewer working pixels on a CPU too slow for the deadline,
+the model's own on one fast enough, never fewer than half of them."""
+
+import time
+
+import httpx
+import numpy as np
+import pytest
+
+from sdcnet.frame_budget import (
+    DEADLINE_SHARE,
+    MIN_SHARE,
+    REFERENCE_MS,
+    calibrate,
+    expected_p95_ms,
+    fixed,
+    reference_frame,
+    share_within,
+)
+from sdcnet.pipeline import complete
+from sdcnet.runtime.onnx import OnnxModel
+from tests.support.serving import running_service
+from tests.test_service import decoded, frame, frame_files, post
+
+WORK = 512 * 512
+
+
+def sleeping_model(seconds_per_budget: float, seen: list[int]):
+    """A stand-in network that takes ``seconds_per_budget`` for every ``WORK`` pixels it is
+    given: foreground where the gray image is lit, depth 20 m, sigma 0.1 m."""
+
+    def run(gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray):
+        seen.append(gray.shape[2] * gray.shape[3])
+        time.sleep(seconds_per_budget * seen[-1] / WORK)
+        depth = np.full_like(gray, 20.0)
+        return depth, (gray > 0.2).astype(np.float32), np.full_like(gray, 0.1)
+
+    return run
+
+
+def test_the_share_keeps_the_expected_p95_within_the_deadline_between_half_and_all():
+    deadline = 100.0
+    at_reference = share_within(REFERENCE_MS, deadline)
+    assert MIN_SHARE < at_reference < 1.0
+    assert expected_p95_ms(REFERENCE_MS, at_reference) == pytest.approx(DEADLINE_SHARE * deadline)
+    slower = share_within(1.2 * REFERENCE_MS, deadline)
+    assert MIN_SHARE < slower < at_reference, "a slower CPU gets fewer pixels"
+    assert expected_p95_ms(1.2 * REFERENCE_MS, slower) == pytest.approx(DEADLINE_SHARE * deadline)
+    assert share_within(0.5 * REFERENCE_MS, deadline) == 1.0, "never more than the model's"
+    assert share_within(5 * REFERENCE_MS, deadline) == MIN_SHARE, "never fewer than half"
+    assert share_within(REFERENCE_MS, 2 * deadline) > at_reference
+
+
+def test_the_reference_frame_is_a_lit_disc_with_returns_on_it_and_gets_the_whole_budget():
+    gray, sparse, K = reference_frame()
+    assert gray.shape == sparse.shape == (K.height, K.width)
+    returns = sparse > 0
+    assert returns.sum() > 4000 and (gray[returns] > 0).all()
+    seen: list[int] = []
+    result = complete(sleeping_model(0.0, seen), gray, sparse, K.fx, 64, WORK)
+    assert seen == [WORK], "its crop is resampled to the whole budget"
+    assert result.mask.sum() == pytest.approx((gray > 0).sum(), rel=0.05)
+
+
+def test_a_cpu_too_slow_gets_half_the_budget_and_says_it_misses_the_deadline():
+    seen: list[int] = []
+    budget = calibrate(sleeping_model(0.5, seen), 64, WORK, deadline_ms=100.0)
+    assert max(seen) == WORK, "timed at the model's own budget"
+    assert budget.work_pixels == WORK // 2 and budget.model_work_pixels == WORK
+    assert budget.reference_ms >= 500 and budget.met is False
+    assert budget.expected_p95_ms > 100.0
+
+
+def test_a_cpu_fast_enough_keeps_the_models_budget():
+    budget = calibrate(sleeping_model(0.0, []), 64, WORK, deadline_ms=60_000.0)
+    assert budget.work_pixels == WORK and budget.met is True
+    assert budget.reference_ms > 0 and budget.expected_p95_ms < 60_000.0
+
+
+@pytest.mark.parametrize("pixels", [0, WORK + 1])
+def test_a_fixed_budget_is_at_most_the_models(pixels):
+    with pytest.raises(ValueError, match="between 1 and the model's 262144"):
+        fixed(pixels, WORK)
+
+
+def test_the_service_answers_at_the_budget_it_chose_and_says_how(tiny_model_path, tmp_path):
+    """``--work-pixels`` fixes the budget (GET /model says so) and the answers are the
+    in-process pipeline's at that budget, not at the model's own."""
+    s = frame()
+    model = OnnxModel(tiny_model_path, provider="cpu", threads=1)
+    own = model.info.work_pixels
+    fewer = own // 16
+    with (
+        running_service(tiny_model_path, tmp_path / "fixed.log", f"--work-pixels={fewer}") as url,
+        httpx.Client(base_url=url, timeout=60) as http,
+    ):
+        meta = http.get("/model").json()
+        answer = post(http, frame_files()).json()
+    assert meta["work_pixels"] == fewer
+    assert meta["frame_budget"] == {
+        "work_pixels": fewer,
+        "model_work_pixels": own,
+        "deadline_ms": 0.0,
+        "reference_ms": None,
+        "expected_p95_ms": None,
+        "met": None,
+    }
+    fx = model.info.intrinsics.scaled(256, 256).fx
+    at_fewer = complete(model.run, s.gray, s.sparse, fx, model.stride, fewer)
+    at_own = complete(model.run, s.gray, s.sparse, fx, model.stride, own)
+    assert at_fewer.grid.shape != at_own.grid.shape
+    np.testing.assert_array_equal(decoded(answer["depth"]), at_fewer.depth)
+    np.testing.assert_array_equal(decoded(answer["mask"]), at_fewer.mask.astype(np.uint8))
+
+
+def test_the_service_measures_its_cpu_for_the_deadline_by_default(tiny_model_path, tmp_path):
+    with (
+        running_service(tiny_model_path, tmp_path / "timed.log", "--frame-ms=60000") as url,
+        httpx.Client(base_url=url, timeout=60) as http,
+    ):
+        chosen = http.get("/model").json()["frame_budget"]
+    assert chosen["deadline_ms"] == 60_000 and chosen["met"] is True
+    assert chosen["work_pixels"] == chosen["model_work_pixels"]
+    assert chosen["reference_ms"] > 0 and 0 < chosen["expected_p95_ms"] < 60_000
