@@ -13,7 +13,7 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    network about the same and the network always sees the spacecraft a few hundred pixels
    across; fewer (down to half) where the frame's own work at its resolution, which grows
    with its crop and its points, would take the whole frame past its budget
-   (``frame_work_pixels``);
+   (``frame_work_pixels``; on a slow CPU a share of that budget: ``sdcnet.frame_budget``);
 3. **infer**: the model, told the focal length in working pixels so that it can put its depths
    in units of the pixel footprint;
 4. **anchor** the depth to the returns it should agree with (``sdcnet.anchoring``), and
@@ -226,18 +226,24 @@ def _grow(lo: int, hi: int, length: int, size: int) -> tuple[int, int]:
     return lo, lo + length
 
 
-def frame_work_pixels(work_pixels: int, crop_pixels: int, hull_pixels: float) -> int:
+def frame_work_pixels(
+    work_pixels: int, crop_pixels: int, hull_pixels: float, frame_share: float = 1.0
+) -> int:
     """The working pixels one frame gets: what the frame's budget (``FRAME_BUDGET`` times
     ``work_pixels``, in working pixels' time) leaves beside its work at its own resolution,
     ``CROP_PIXEL_COST`` for each of its crop's ``crop_pixels`` and ``HULL_PIXEL_COST`` for each
     of the ``hull_pixels`` within its returns' convex hull (where its points will be), between
     ``MIN_WORK_SHARE`` of ``work_pixels`` and all of them. The network's pixels are most of a
     frame's cost, but not all of it: without this, a 2048 x 2048 crop holding a million points
-    took twice a paper frame's milliseconds at the same working pixels."""
+    took twice a paper frame's milliseconds at the same working pixels.
+
+    ``frame_share`` (at most 1) scales the frame's budget and that floor, not the network's
+    ``work_pixels``: on a CPU slower than the one the budget was timed on
+    (``sdcnet.frame_budget``), a frame whose own work is small still gets all the network's
+    pixels while the frames of large crops and many points get fewer."""
     own = CROP_PIXEL_COST * crop_pixels + HULL_PIXEL_COST * hull_pixels
-    return int(
-        min(work_pixels, max(MIN_WORK_SHARE * work_pixels, FRAME_BUDGET * work_pixels - own))
-    )
+    floor = MIN_WORK_SHARE * frame_share * work_pixels
+    return int(min(work_pixels, max(floor, FRAME_BUDGET * frame_share * work_pixels - own)))
 
 
 def working_grid(
@@ -595,12 +601,13 @@ def working_inputs(
     stride: int,
     work_pixels: int = WORK_PIXELS,
     region: Region | None = None,
+    frame_share: float = 1.0,
 ) -> WorkingInputs:
     """Crop a frame to the spacecraft's region (or ``region``) and resample it to its working
     grid, of at most ``work_pixels`` pixels, fewer where the frame's own work at its resolution
-    would take it past its budget (``frame_work_pixels``). gray uint8/uint16 (H, W); sparse
-    float32 (H, W) metres, 0 = no return; ``focal_px`` the camera's focal length in the
-    frame's pixels (fx)."""
+    would take it past its budget (``frame_work_pixels``, ``frame_share`` of it). gray
+    uint8/uint16 (H, W); sparse float32 (H, W) metres, 0 = no return; ``focal_px`` the
+    camera's focal length in the frame's pixels (fx)."""
     if gray.shape != sparse.shape:
         raise ValueError(f"gray {gray.shape} and sparse {sparse.shape} differ in size")
     if not (math.isfinite(focal_px) and focal_px > 0):
@@ -611,7 +618,9 @@ def working_inputs(
     if region is None:
         region, cuts = spacecraft_region(rows, cols, gray, spacing)
     hull_pixels = 0.0 if spacing is None else spacing * spacing * len(rows)
-    budget = frame_work_pixels(work_pixels, region.shape[0] * region.shape[1], hull_pixels)
+    budget = frame_work_pixels(
+        work_pixels, region.shape[0] * region.shape[1], hull_pixels, frame_share
+    )
     grid = working_grid(region, gray.shape, stride, budget)
     g = grid.region
     inside = (rows >= g.y0) & (rows < g.y1) & (cols >= g.x0) & (cols < g.x1)
@@ -665,12 +674,14 @@ def complete(
     stride: int,
     work_pixels: int = WORK_PIXELS,
     threshold: float = 0.5,
+    frame_share: float = 1.0,
 ) -> Completion:
     """Run ``model`` on the spacecraft's region of one frame, resampled to its working grid
-    (``working_inputs``), anchor its depth to the returns (``anchor_to_returns``) and its
-    sigma with it (``anchored_sigma``), smooth the surface between the returns
+    (``working_inputs``: at most ``work_pixels``, ``frame_share`` of the frame's budget),
+    anchor its depth to the returns (``anchor_to_returns``) and its sigma with it
+    (``anchored_sigma``), smooth the surface between the returns
     (``smoothed_between_returns``), and paste the answer back at the frame's resolution."""
-    inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels)
+    inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels, frame_share=frame_share)
     grid = inputs.grid
     depth_w, prob_w, sigma_w = run_model(model, inputs)
     kept = drop_specks(prob_w > threshold, inputs.sparse, RETURN_REACH_PX)

@@ -134,10 +134,11 @@ def create_app(
             loaded, settings.work_pixels, settings.frame_ms
         )
         logger.info(
-            "frames get %d working pixels (the model's %d; reference frame %s ms, p95 "
-            "expected %s ms, --frame-ms %g)",
+            "frames get %d working pixels at most (the model's %d) and %.2f of their budget "
+            "(reference frame %s ms, p95 expected %s ms, --frame-ms %g)",
             chosen.work_pixels,
             chosen.model_work_pixels,
+            chosen.frame_share,
             chosen.reference_ms,
             chosen.expected_p95_ms,
             chosen.deadline_ms,

@@ -126,6 +126,7 @@ class Engine:
                     focal_px,
                     self.model.info.stride,
                     self.frame_budget.work_pixels,
+                    frame_share=self.frame_budget.frame_share,
                 )
         finally:
             self._lock.release()
@@ -304,10 +305,11 @@ def warm_up(model: Runtime, side: int) -> None:
 
 
 def choose_frame_budget(model: Runtime, work_pixels: int | None, frame_ms: float) -> FrameBudget:
-    """The working pixels the service's frames get: ``work_pixels`` when set (at most the
-    model's own), else the model's own budget cut to keep this CPU's p95 frame within
-    ``frame_ms`` (``sdcnet.frame_budget.calibrate``: about 0.4 s on two cores), or, for
-    ``frame_ms`` 0, the model's own; ``ModelLoadError`` for more pixels than the model's."""
+    """The budget the service's frames get: ``work_pixels`` working pixels at most when set
+    (at most the model's own), else the model's own budget, a share of it where this CPU is
+    too slow to keep its p95 frame within ``frame_ms`` (``sdcnet.frame_budget.calibrate``:
+    about 0.5 s on two cores), or, for ``frame_ms`` 0, all of it unmeasured;
+    ``ModelLoadError`` for more pixels than the model's."""
     own = model.info.work_pixels
     if work_pixels is not None:
         try:
@@ -319,10 +321,10 @@ def choose_frame_budget(model: Runtime, work_pixels: int | None, frame_ms: float
     chosen = calibrate(model.run, model.stride, own, frame_ms)
     if not chosen.met:
         logger.warning(
-            "this CPU completes the reference frame in %.0f ms: even at %d working pixels, "
-            "half the model's, frames are expected to take %.0f ms at p95, over --frame-ms %g",
+            "this CPU completes the reference frame in %.0f ms: even at %.2f of their budget, "
+            "frames are expected to take %.0f ms at p95, over --frame-ms %g",
             chosen.reference_ms,
-            chosen.work_pixels,
+            chosen.frame_share,
             chosen.expected_p95_ms,
             frame_ms,
         )

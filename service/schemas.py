@@ -196,8 +196,13 @@ class TargetInfo(BaseModel):
 class FrameBudgetInfo(BaseModel):
     """How the working pixels a frame gets were chosen (``sdcnet.frame_budget``)."""
 
-    work_pixels: int = Field(description="what frames get at most")
-    model_work_pixels: int = Field(description="the model's own budget, trained and timed for")
+    work_pixels: int = Field(description="working pixels frames get at most")
+    model_work_pixels: int = Field(description="the model's own, trained and timed for")
+    frame_share: float = Field(
+        description="the share of a frame's budget (the network's pixels and its own work at "
+        "its resolution) frames get: 1, or less on a CPU too slow for deadline_ms at all of "
+        "it, where frames of large crops and many points get fewer working pixels"
+    )
     deadline_ms: float = Field(
         description="the p95 in-process milliseconds held to (--frame-ms); 0: none"
     )
@@ -210,7 +215,7 @@ class FrameBudgetInfo(BaseModel):
     )
     met: bool | None = Field(
         description="whether expected_p95_ms is within deadline_ms; false: this CPU is too "
-        "slow even at half the model's budget; null: not measured"
+        "slow even at half the budget; null: not measured"
     )
 
 
@@ -230,8 +235,8 @@ class ModelMetadata(BaseModel):
         description="pixels the network sees per frame at most, whatever the camera: the "
         "spacecraft's crop is resampled to about this many, fewer (down to half) where the "
         "frame's own work at its resolution is large (a large crop, many points), so that "
-        "every frame keeps to one cost; the model's own, or fewer on a CPU too slow for "
-        "frame_budget's deadline"
+        "every frame keeps to one cost; the model's own unless sdc-serve --work-pixels set "
+        "fewer"
     )
     frame_budget: FrameBudgetInfo = Field(
         description="how work_pixels was chosen (sdc-serve --frame-ms, --work-pixels)"

@@ -1,6 +1,7 @@
-"""The working pixels a frame gets on this CPU (``sdcnet.frame_budget``), and the service's
-``--frame-ms`` / ``--work-pixels``: fewer working pixels on a CPU too slow for the deadline,
-the model's own on one fast enough, never fewer than half of them."""
+"""A frame's budget on this CPU (``sdcnet.frame_budget``), and the service's ``--frame-ms`` /
+``--work-pixels``: a share of the frames' budget on a CPU too slow for the deadline (the
+frames of large crops get fewer working pixels, the others keep them), all of it on one fast
+enough, never less than half."""
 
 import time
 
@@ -18,7 +19,7 @@ from sdcnet.frame_budget import (
     reference_frame,
     share_within,
 )
-from sdcnet.pipeline import complete
+from sdcnet.pipeline import MIN_WORK_SHARE, complete, frame_work_pixels
 from sdcnet.runtime.onnx import OnnxModel
 from tests.support.serving import running_service
 from tests.test_service import decoded, frame, frame_files, post
@@ -40,6 +41,7 @@ def sleeping_model(seconds_per_budget: float, seen: list[int]):
 
 
 def test_the_share_keeps_the_expected_p95_within_the_deadline_between_half_and_all():
+    """A slower CPU gets a smaller share, down to ``MIN_SHARE``; a faster one all of it."""
     deadline = 100.0
     at_reference = share_within(REFERENCE_MS, deadline)
     assert MIN_SHARE < at_reference < 1.0
@@ -47,8 +49,8 @@ def test_the_share_keeps_the_expected_p95_within_the_deadline_between_half_and_a
     slower = share_within(1.2 * REFERENCE_MS, deadline)
     assert MIN_SHARE < slower < at_reference, "a slower CPU gets fewer pixels"
     assert expected_p95_ms(1.2 * REFERENCE_MS, slower) == pytest.approx(DEADLINE_SHARE * deadline)
-    assert share_within(0.5 * REFERENCE_MS, deadline) == 1.0, "never more than the model's"
-    assert share_within(5 * REFERENCE_MS, deadline) == MIN_SHARE, "never fewer than half"
+    assert share_within(0.5 * REFERENCE_MS, deadline) == 1.0, "never more than the whole"
+    assert share_within(5 * REFERENCE_MS, deadline) == MIN_SHARE, "never less than half"
     assert share_within(REFERENCE_MS, 2 * deadline) > at_reference
 
 
@@ -66,16 +68,42 @@ def test_the_reference_frame_is_a_lit_disc_with_returns_on_it_and_gets_the_whole
 def test_a_cpu_too_slow_gets_half_the_budget_and_says_it_misses_the_deadline():
     seen: list[int] = []
     budget = calibrate(sleeping_model(0.5, seen), 64, WORK, deadline_ms=100.0)
-    assert max(seen) == WORK, "timed at the model's own budget"
-    assert budget.work_pixels == WORK // 2 and budget.model_work_pixels == WORK
+    assert max(seen) == WORK, "timed at the whole budget"
+    assert budget.frame_share == MIN_SHARE
+    assert budget.work_pixels == budget.model_work_pixels == WORK, "the network's cap stays"
     assert budget.reference_ms >= 500 and budget.met is False
     assert budget.expected_p95_ms > 100.0
 
 
-def test_a_cpu_fast_enough_keeps_the_models_budget():
+def test_a_cpu_fast_enough_keeps_the_whole_budget():
     budget = calibrate(sleeping_model(0.0, []), 64, WORK, deadline_ms=60_000.0)
-    assert budget.work_pixels == WORK and budget.met is True
+    assert budget.work_pixels == WORK and budget.frame_share == 1.0 and budget.met is True
     assert budget.reference_ms > 0 and budget.expected_p95_ms < 60_000.0
+
+
+def test_a_share_of_the_budget_cuts_the_frames_of_large_crops_not_the_small():
+    """``frame_share`` scales a frame's budget and its floor, not the network's cap."""
+    small, large = (700 * 700, 300 * 300), (2048 * 2048, 900 * 900)
+    assert frame_work_pixels(WORK, *small, frame_share=0.8) == WORK
+    whole, share = (frame_work_pixels(WORK, *large, frame_share=f) for f in (1.0, 0.8))
+    assert share < whole < WORK
+    every_pixel = (2048 * 2048, 2048 * 2048)
+    assert frame_work_pixels(WORK, *every_pixel, frame_share=0.8) == int(
+        0.8 * MIN_WORK_SHARE * WORK
+    )
+
+
+def test_complete_takes_the_share_on_a_frame_of_large_own_work():
+    """The same 2048 x 2048 frame, its returns across it: fewer working pixels at a share."""
+    gray = np.full((2048, 2048), 150, np.uint8)
+    sparse = np.zeros(gray.shape, np.float32)
+    sparse[::8, ::8] = 20.0
+    shapes = {}
+    for share in (1.0, 0.6):
+        seen: list[int] = []
+        complete(sleeping_model(0.0, seen), gray, sparse, 2000.0, 64, WORK, frame_share=share)
+        shapes[share] = seen[0]
+    assert shapes[0.6] < shapes[1.0] <= MIN_WORK_SHARE * WORK
 
 
 @pytest.mark.parametrize("pixels", [0, WORK + 1])
@@ -101,6 +129,7 @@ def test_the_service_answers_at_the_budget_it_chose_and_says_how(tiny_model_path
     assert meta["frame_budget"] == {
         "work_pixels": fewer,
         "model_work_pixels": own,
+        "frame_share": 1.0,
         "deadline_ms": 0.0,
         "reference_ms": None,
         "expected_p95_ms": None,
@@ -121,5 +150,5 @@ def test_the_service_measures_its_cpu_for_the_deadline_by_default(tiny_model_pat
     ):
         chosen = http.get("/model").json()["frame_budget"]
     assert chosen["deadline_ms"] == 60_000 and chosen["met"] is True
-    assert chosen["work_pixels"] == chosen["model_work_pixels"]
+    assert chosen["work_pixels"] == chosen["model_work_pixels"] and chosen["frame_share"] == 1.0
     assert chosen["reference_ms"] > 0 and 0 < chosen["expected_p95_ms"] < 60_000
