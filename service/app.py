@@ -113,13 +113,6 @@ def create_app(
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         loaded = model or load_model(settings)
-        service_metrics.model.info(
-            {
-                "version": loaded.info.version,
-                "provider": loaded.provider,
-                "threads": str(loaded.threads),
-            }
-        )
         logger.info(
             "model %s from %s on %s, %d intra-op threads; at most %d requests in flight",
             loaded.info.version,
@@ -142,6 +135,15 @@ def create_app(
             chosen.reference_ms,
             chosen.expected_p95_ms,
             chosen.deadline_ms,
+        )
+        service_metrics.model.info(
+            {
+                "version": loaded.info.version,
+                "provider": loaded.provider,
+                "threads": str(loaded.threads),
+                "work_pixels": str(chosen.work_pixels),
+                "frame_share": f"{chosen.frame_share:g}",
+            }
         )
         app.state.engine = Engine(loaded, settings.max_points, chosen)
         yield

@@ -648,7 +648,14 @@ def test_metrics_move_with_requests(client):
     assert after == failed + 1
     timed_after = metric(client, "sdcnet_inference_phase_duration_seconds_count", phase="inference")
     assert timed_after == timed + 1
-    info = {"provider": "CPUExecutionProvider", "threads": "1", "version": TINY_VERSION}
+    own = client.get("/model").json()["frame_budget"]["model_work_pixels"]
+    info = {  # Prometheus orders the labels by name; the tests' --frame-ms 0: the whole budget
+        "frame_share": "1",
+        "provider": "CPUExecutionProvider",
+        "threads": "1",
+        "version": TINY_VERSION,
+        "work_pixels": str(own),
+    }
     assert metric(client, "sdcnet_model_info", **info) == 1
     assert metric(client, "sdcnet_inference_request_duration_seconds_count") >= 1
 
