@@ -268,7 +268,7 @@ infer_and_compare() {
     --url "http://127.0.0.1:$PORT" --out "$SCRATCH/answer" --retries 0 \
     || fail "sdc-client infer against the container failed"
   "$VENV/bin/python" "$REPO/docker/check_frame.py" compare \
-    "$MODEL" "$FRAME" "$SCRATCH/answer" --threads "$THREADS" \
+    "$MODEL" "$FRAME" "$SCRATCH/answer" --threads "$THREADS" --url "http://127.0.0.1:$PORT" \
     || fail "the container's answer differs from onnxruntime on the host"
 }
 

@@ -2,16 +2,18 @@
 
     python docker/check_frame.py port                               # a free TCP port on 127.0.0.1
     python docker/check_frame.py generate DIR                       # DIR/gray.png, DIR/sparse.npy
-    python docker/check_frame.py compare MODEL DIR RESULT --threads N
+    python docker/check_frame.py compare MODEL DIR RESULT --threads N --url URL
     python docker/check_frame.py latency URL DIR --repeat N         # JSON: round trip, inference
 
 ``compare`` runs MODEL on the host with onnxruntime (``OnnxModel`` + ``sdcnet.pipeline
 .complete``, as the service does) and holds ``sdc-client infer``'s ``RESULT/depth.npy`` and
-``RESULT/mask.png`` to it. The same graph on the same CPU with the same thread count gives
-the same bits when the onnxruntime versions match; a different onnxruntime (the image installs
-its newest release, the host's may be older) may pick other kernels, so the check allows float
-noise: depth within 1e-4 m + 1e-5 relative where both masks agree, and mask differences only
-on pixels whose probability is within 1e-4 of the 0.5 threshold. It says which case it saw.
+``RESULT/mask.png`` to it, at the budget the service at URL chose for its CPU (``GET /model``'s
+``frame_budget``: its working pixels and share, ``sdcnet.frame_budget``). The same graph on
+the same CPU with the same thread count gives the same bits when the onnxruntime versions
+match; a different onnxruntime (the image installs its newest release, the host's may be
+older) may pick other kernels, so the check allows float noise: depth within 1e-4 m + 1e-5
+relative where both masks agree, and mask differences only on pixels whose probability is
+within 1e-4 of the 0.5 threshold. It says which case it saw.
 """
 
 from __future__ import annotations
@@ -59,6 +61,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     """Exit 0 when the service's answer equals the host's onnxruntime run (see above)."""
     import onnxruntime
 
+    from sdcnet.client.api import Client
     from sdcnet.pipeline import complete
     from sdcnet.runtime.onnx import OnnxModel
 
@@ -66,7 +69,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
     sparse = np.load(args.dir / "sparse.npy", allow_pickle=False)
     model = OnnxModel(args.model, provider="cpu", threads=args.threads)
     K = model.info.intrinsics.scaled(gray.shape[1], gray.shape[0])  # what the service defaults to
-    ref = complete(model.run, gray, sparse, K.fx, model.stride, model.info.work_pixels)
+    with Client(args.url, retries=0) as client:
+        budget = client.model()["frame_budget"]  # what the service chose for its CPU
+    ref = complete(
+        model.run,
+        gray,
+        sparse,
+        K.fx,
+        model.stride,
+        budget["work_pixels"],
+        frame_share=budget["frame_share"],
+    )
 
     depth = np.load(args.result / "depth.npy", allow_pickle=False)
     mask = cv2.imread(str(args.result / "mask.png"), cv2.IMREAD_UNCHANGED) > 0
@@ -84,7 +97,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         )
         return 1
 
-    where = f"host onnxruntime {onnxruntime.__version__}, {model.threads} threads"
+    where = (
+        f"host onnxruntime {onnxruntime.__version__}, {model.threads} threads, the service's "
+        f"{budget['frame_share']:g} of the frame budget"
+    )
     if np.array_equal(depth, ref.depth) and np.array_equal(mask, ref.mask):
         print(
             f"compare: depth and mask bit-identical to the direct run ({where}); "
@@ -148,6 +164,7 @@ def parser() -> argparse.ArgumentParser:
     cmp.add_argument("dir", type=Path)
     cmp.add_argument("result", type=Path)
     cmp.add_argument("--threads", type=int, default=2)
+    cmp.add_argument("--url", required=True, help="the service that answered")
     cmp.set_defaults(run=cmd_compare)
     lat = sub.add_parser("latency")
     lat.add_argument("url")
