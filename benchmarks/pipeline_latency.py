@@ -39,12 +39,10 @@ from sdcnet.frame_budget import (
     REFERENCE_MS,
     SUITE_P95_MS,
     FrameBudget,
+    answer_in_process,
     calibrate,
     frame_milliseconds,
 )
-from sdcnet.normals import cloud_normals
-from sdcnet.pipeline import complete
-from sdcnet.pointcloud import MAX_POINTS, back_project, cloud_stride
 from sdcnet.runtime.onnx import OnnxModel
 
 BUDGET_MS = 100.0
@@ -68,19 +66,9 @@ def time_frames(
     def run(runner: Runner, sample) -> None:
         model, work_pixels, share = runner
         K = Intrinsics(**sample.meta["intrinsics"])
-        result = complete(
-            model.run,
-            sample.gray,
-            sample.sparse,
-            K.fx,
-            model.stride,
-            work_pixels,
-            frame_share=share,
+        answer_in_process(
+            model.run, sample.gray, sample.sparse, K, model.stride, work_pixels, share
         )
-        valid = result.mask & (result.depth > 0)
-        stride = cloud_stride(valid, MAX_POINTS)  # the service's cloud at its default
-        back_project(result.depth, valid, K, stride=stride)
-        cloud_normals(result, valid, K, stride=stride)
 
     for runner in runners.values():
         for sample in samples[:2]:

@@ -53,7 +53,7 @@ REFERENCE_RETURN_STEP = 8
 REFERENCE_DEPTH_M = 20.0
 #: ... and the focal length it is seen with (pixels).
 REFERENCE_FOCAL_PX = 1000.0
-#: Timed runs at each budget (their median counts), after one untimed run.
+#: Timed runs of the reference frame (their median counts), after one untimed run.
 REPEATS = 5
 
 
@@ -107,24 +107,34 @@ def reference_frame() -> tuple[np.ndarray, np.ndarray, Intrinsics]:
     return gray, sparse, K
 
 
+def answer_in_process(
+    model_fn: ModelFn,
+    gray: np.ndarray,
+    sparse: np.ndarray,
+    K: Intrinsics,
+    stride: int,
+    work_pixels: int,
+    frame_share: float = 1.0,
+) -> None:
+    """A frame's whole in-process answer, what the deadline holds: the pipeline at
+    ``work_pixels`` and ``frame_share``, the cloud at the service's default ``MAX_POINTS`` and
+    its normals (the service's work between decoding and encoding)."""
+    result = complete(model_fn, gray, sparse, K.fx, stride, work_pixels, frame_share=frame_share)
+    valid = result.mask & (result.depth > 0)
+    step = cloud_stride(valid, MAX_POINTS)
+    back_project(result.depth, valid, K, stride=step)
+    cloud_normals(result, valid, K, stride=step)
+
+
 def frame_milliseconds(model_fn: ModelFn, stride: int, work_pixels: int) -> float:
-    """Median milliseconds of the reference frame through the whole in-process answer (the
-    pipeline, the cloud at the service's default ``MAX_POINTS``, its normals) at
+    """Median milliseconds of the reference frame's whole answer (``answer_in_process``) at
     ``work_pixels``, over ``REPEATS`` runs after one untimed run."""
     gray, sparse, K = reference_frame()
-
-    def answer() -> None:
-        result = complete(model_fn, gray, sparse, K.fx, stride, work_pixels)
-        valid = result.mask & (result.depth > 0)
-        step = cloud_stride(valid, MAX_POINTS)
-        back_project(result.depth, valid, K, stride=step)
-        cloud_normals(result, valid, K, stride=step)
-
-    answer()
+    answer_in_process(model_fn, gray, sparse, K, stride, work_pixels)
     times = []
     for _ in range(REPEATS):
         start = time.perf_counter()
-        answer()
+        answer_in_process(model_fn, gray, sparse, K, stride, work_pixels)
         times.append((time.perf_counter() - start) * 1e3)
     return statistics.median(times)
 
