@@ -245,6 +245,7 @@ bench: $(STAMP) $(THIRD_ONNX) $(EIGHTH_ONNX)
 	$(PY) -m benchmarks.accuracy_speed --checkpoint models/sdcnet.pt --onnx runs/variants/sdcnet.onnx \
 		--data data/paper --split test --limit 192
 	$(PY) -m benchmarks.service_latency --requests 60
+	$(PY) -m benchmarks.first_frames --conditions docking-2048 any --frames 8 --starts 3
 	$(PY) -m benchmarks.load --requests 2000 --concurrency 32
 	$(PY) -m benchmarks.mask_trust --onnx models/sdcnet.onnx --limit 288 \
 		--sets $(addprefix data/robustness/,$(CONDITIONS)) data/real data/paper:test

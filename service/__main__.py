@@ -2,6 +2,6 @@
 
 import sys
 
-from sdcnet.service.cli import main
+from sdcnet.service.launch import main
 
 sys.exit(main())

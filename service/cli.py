@@ -14,7 +14,6 @@ from pathlib import Path
 import uvicorn
 from pydantic import ValidationError
 
-from sdcnet.allocator import configure_malloc
 from sdcnet.calibration import CalibrationError
 from sdcnet.cli import add_debug_flag, run_command
 from sdcnet.runtime.interface import ModelLoadError
@@ -115,8 +114,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def serve(args: argparse.Namespace) -> int:
     """Load the camera, the model and the targets, then serve until stopped; 2 with one line
-    for a bad setting or file."""
-    configure_malloc()
+    for a bad setting or file. Started by ``sdcnet.service.launch``, which sets up the
+    allocator before anything else is imported."""
     given = {setting: getattr(args, setting) for _, setting, _ in FLAGS}
     try:
         settings = Settings(**{k: v for k, v in given.items() if v is not None})

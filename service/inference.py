@@ -24,7 +24,7 @@ import numpy as np
 from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.caveats import frame_caveats
 from sdcnet.compact import mask_window
-from sdcnet.frame_budget import FrameBudget, calibrate, fixed
+from sdcnet.frame_budget import FrameBudget, answer_in_process, calibrate, fixed
 from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import (
@@ -286,22 +286,32 @@ def complete_frame(
     )
 
 
-#: Pixels between the returns of the warm-up frames (``warm_up``): a grid across each frame.
-WARM_UP_RETURN_STEP = 16
+def warm_up_frame(side: int) -> tuple[np.ndarray, np.ndarray, Intrinsics]:
+    """(gray uint16, sparse metres, intrinsics) of a ``side`` x ``side`` frame that is all
+    spacecraft, lit along a slope, with a return on every pixel at about 10 m: the most work and
+    memory a frame of that side can ask of the pipeline."""
+    slope = np.linspace(-1.0, 1.0, side, dtype=np.float32)[None, :]
+    gray = np.broadcast_to((20000 + 10000 * slope).astype(np.uint16), (side, side)).copy()
+    sparse = np.broadcast_to(10.0 + 0.5 * slope, (side, side)).astype(np.float32)
+    centre = side / 2
+    return gray, sparse, Intrinsics(1000.0, 1000.0, centre, centre, side, side)
 
 
 def warm_up(model: Runtime, side: int) -> None:
-    """Complete two synthetic frames whose returns cover them before the first request, not
-    during it (docs/development.md, "Measurements"): one of ``side`` x ``side`` pixels (the
-    largest the service accepts), so that the allocator's heap grows to the full-resolution
-    maps, and one as large as the model's working budget, so that onnxruntime's arena grows
-    to it (a frame as large as the first gets fewer working pixels:
-    ``sdcnet.pipeline.frame_work_pixels``)."""
+    """Answer two synthetic frames before the first request, not during it: one of ``side`` x
+    ``side`` pixels (the largest the service accepts) that asks the most a frame of that side
+    can (``warm_up_frame``), so that the allocator's heap grows to the full-resolution maps and
+    every page of it is touched; one as large as the model's working budget, so that
+    onnxruntime's arena grows to it (a frame as large as the first gets fewer working pixels:
+    ``sdcnet.pipeline.frame_work_pixels``). Each is answered whole (``answer_in_process``: the
+    pipeline, the cloud and its normals). After a dark frame of sparse returns, or a lit one of
+    a return every second pixel, the first 2048 x 2048 frames took 3-4 times a warm frame's
+    milliseconds, the memory they wrote faulting in (``benchmarks.first_frames``;
+    docs/development.md, "Measurements"). About 1.3 s at 2048 px on two cores, longer on the
+    process's first memory."""
     for frame_side in (side, math.isqrt(model.info.work_pixels)):
-        gray = np.zeros((frame_side, frame_side), np.uint8)
-        sparse = np.zeros((frame_side, frame_side), np.float32)
-        sparse[::WARM_UP_RETURN_STEP, ::WARM_UP_RETURN_STEP] = 100.0
-        complete(model.run, gray, sparse, 1000.0, model.stride, model.info.work_pixels)
+        gray, sparse, K = warm_up_frame(frame_side)
+        answer_in_process(model.run, gray, sparse, K, model.stride, model.info.work_pixels)
 
 
 def choose_frame_budget(model: Runtime, work_pixels: int | None, frame_ms: float) -> FrameBudget:

@@ -56,7 +56,7 @@ def _boom(*args, **kwargs):
 #: torch.
 COMMANDS = {
     "sdc-client": ("sdcnet.client.cli", "cmd_model", ["model", "{debug}"], None),
-    "sdc-serve": ("sdcnet.service.cli", "configure_malloc", ["{debug}"], None),
+    "sdc-serve": ("sdcnet.service.cli", "configured_camera", ["{debug}"], None),
     "sdc-data": ("sdcnet.training.data.cli", "cmd_bench", ["{debug}", "bench"], "embreex"),
     "sdc-train": ("sdcnet.training.cli", "ship_checkpoint", ["{debug}", "ship"], "torch"),
     "sdc-eval": ("sdcnet.evaluation.cli", "write_card", ["{debug}", "card"], "torch"),

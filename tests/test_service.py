@@ -41,7 +41,7 @@ from sdcnet.service.admission import slot_routes
 from sdcnet.service.app import create_app
 from sdcnet.service.camera import ANSWER_FRAME
 from sdcnet.service.deps import get_engine
-from sdcnet.service.inference import Engine, warm_up
+from sdcnet.service.inference import Engine, warm_up, warm_up_frame
 from sdcnet.service.routes import ROUTERS
 from sdcnet.service.settings import Settings, get_settings
 from tests.support.frames import png_bytes, synthetic_frame
@@ -115,6 +115,17 @@ def test_the_warm_up_runs_the_network_on_its_budget_and_completes_a_whole_frame(
     (_, _, _, width), (_, _, budget_height, budget_width) = shapes
     assert focals[0] == pytest.approx(1000.0 * width / 2048)  # the crop is the whole frame
     assert 0.8 * WORK_PIXELS <= budget_height * budget_width <= WORK_PIXELS
+
+
+def test_the_warm_up_frame_asks_the_most_a_frame_of_its_side_can():
+    """Every pixel lit (a 16-bit image) and a return on every one of them, at the depth of a
+    plane: the frame whose answer writes every full-resolution map the pipeline has, so that
+    the first real frames find that memory already written."""
+    gray, sparse, K = warm_up_frame(300)
+    assert gray.shape == sparse.shape == (300, 300)
+    assert gray.dtype == np.uint16 and gray.min() > 0 and gray.max() > gray.min()
+    assert sparse.dtype == np.float32 and np.all((sparse > 9) & (sparse < 11))
+    assert (K.width, K.height, K.cx, K.cy) == (300, 300, 150.0, 150.0)
 
 
 def frame():
