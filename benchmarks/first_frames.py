@@ -92,10 +92,16 @@ def one_start(model: Path, frames: dict[str, list], workdir: Path) -> dict:
 def summary(starts: list[dict], name: str, kind: str, key: str) -> dict[str, float]:
     """Median, p95 and max of one pass's ``key`` milliseconds over every start."""
     ms = np.array([shot[key] for s in starts for shot in s["timings"][name][kind]])
-    return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "max": ms.max()}
+    return {
+        "median": float(np.median(ms)),
+        "p95": float(np.percentile(ms, 95)),
+        "max": float(ms.max()),
+    }
 
 
 def report(starts: list[dict], conditions: list[str], command: str, model: str) -> str:
+    """The markdown report: each condition's passes, each start's readiness and memory, and
+    the slowest cold frame."""
     lines = [
         f"Measured on {cpu_description()}: {len(starts)} fresh starts of `sdc-serve` on {model} "
         "(2 threads, the frame budget it chose for this CPU), each sent the first frames of "
