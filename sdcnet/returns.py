@@ -130,7 +130,7 @@ def check_dense_depths(sparse: np.ndarray) -> None:
         _refuse_depths(~finite, "NaN or infinite values")
     if sparse.size and sparse.min() < 0:
         _refuse_depths(sparse < 0, "negative depths: metres >= 0, 0 = no return")
-    if sparse.size and sparse.max() > MAX_DEPTH_M:
+    if sparse.size and float(sparse.max()) > MAX_DEPTH_M:  # a float16 map cannot hold the limit
         _refuse_depths(sparse > MAX_DEPTH_M, f"depths beyond {MAX_DEPTH_M:.0f} m")
 
 
