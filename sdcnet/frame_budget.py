@@ -115,13 +115,14 @@ def answer_in_process(
     stride: int,
     work_pixels: int,
     frame_share: float = 1.0,
+    max_points: int = MAX_POINTS,
 ) -> None:
     """A frame's whole in-process answer, what the deadline holds: the pipeline at
-    ``work_pixels`` and ``frame_share``, the cloud at the service's default ``MAX_POINTS`` and
-    its normals (the service's work between decoding and encoding)."""
+    ``work_pixels`` and ``frame_share``, the cloud of at most ``max_points`` (the service's
+    default) and its normals (the service's work between decoding and encoding)."""
     result = complete(model_fn, gray, sparse, K.fx, stride, work_pixels, frame_share=frame_share)
     valid = result.mask & (result.depth > 0)
-    step = cloud_stride(valid, MAX_POINTS)
+    step = cloud_stride(valid, max_points)
     back_project(result.depth, valid, K, stride=step)
     cloud_normals(result, valid, K, stride=step)
 

@@ -67,7 +67,7 @@ def load_model(settings: Settings) -> Runtime:
         settings.spin_wait,
     )
     self_test(model)
-    warm_up(model, max(SELF_TEST_SIZE, math.isqrt(settings.max_pixels)))
+    warm_up(model, max(SELF_TEST_SIZE, math.isqrt(settings.max_pixels)), settings.max_points)
     return model
 
 

@@ -297,21 +297,23 @@ def warm_up_frame(side: int) -> tuple[np.ndarray, np.ndarray, Intrinsics]:
     return gray, sparse, Intrinsics(1000.0, 1000.0, centre, centre, side, side)
 
 
-def warm_up(model: Runtime, side: int) -> None:
+def warm_up(model: Runtime, side: int, max_points: int = MAX_POINTS) -> None:
     """Answer two synthetic frames before the first request, not during it: one of ``side`` x
     ``side`` pixels (the largest the service accepts) that asks the most a frame of that side
     can (``warm_up_frame``), so that the allocator's heap grows to the full-resolution maps and
     every page of it is touched; one as large as the model's working budget, so that
     onnxruntime's arena grows to it (a frame as large as the first gets fewer working pixels:
     ``sdcnet.pipeline.frame_work_pixels``). Each is answered whole (``answer_in_process``: the
-    pipeline, the cloud and its normals). After a dark frame of sparse returns, or a lit one of
-    a return every second pixel, the first 2048 x 2048 frames took 3-4 times a warm frame's
-    milliseconds, the memory they wrote faulting in (``benchmarks.first_frames``;
-    docs/development.md, "Measurements"). About 1.3 s at 2048 px on two cores, longer on the
-    process's first memory."""
+    pipeline, the cloud of at most ``max_points`` as the service's requests, and its normals).
+    After a dark frame of sparse returns, or a lit one of a return every second pixel, the
+    first 2048 x 2048 frames took 3-4 times a warm frame's milliseconds, the memory they wrote
+    faulting in (``benchmarks.first_frames``; docs/development.md, "Measurements"). About 1.3
+    s at 2048 px on two cores, longer on the process's first memory."""
     for frame_side in (side, math.isqrt(model.info.work_pixels)):
         gray, sparse, K = warm_up_frame(frame_side)
-        answer_in_process(model.run, gray, sparse, K, model.stride, model.info.work_pixels)
+        answer_in_process(
+            model.run, gray, sparse, K, model.stride, model.info.work_pixels, max_points=max_points
+        )
 
 
 def choose_frame_budget(model: Runtime, work_pixels: int | None, frame_ms: float) -> FrameBudget:

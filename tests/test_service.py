@@ -15,6 +15,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import math
 import re
 import subprocess
 import sys
@@ -37,6 +38,7 @@ from sdcnet.pipeline import WORK_PIXELS, complete
 from sdcnet.pointcloud import back_project, cloud_stride, read_ply, statistical_outliers
 from sdcnet.returns import returns_from_dense, scatter_nearest
 from sdcnet.runtime.onnx import OnnxModel
+from sdcnet.service import inference
 from sdcnet.service.admission import slot_routes
 from sdcnet.service.app import create_app
 from sdcnet.service.camera import ANSWER_FRAME
@@ -115,6 +117,21 @@ def test_the_warm_up_runs_the_network_on_its_budget_and_completes_a_whole_frame(
     (_, _, _, width), (_, _, budget_height, budget_width) = shapes
     assert focals[0] == pytest.approx(1000.0 * width / 2048)  # the crop is the whole frame
     assert 0.8 * WORK_PIXELS <= budget_height * budget_width <= WORK_PIXELS
+
+
+def test_the_warm_up_answers_its_frames_whole_with_the_services_cloud_size(engine, monkeypatch):
+    """Both warm-up frames go through the whole answer (pipeline, cloud, normals), the cloud
+    as large as the service's requests may make it (``--max-points``)."""
+    answered = []
+
+    def record(model_fn, gray, sparse, K, stride, work_pixels, frame_share=1.0, max_points=0):
+        answered.append((gray.shape, work_pixels, max_points))
+
+    monkeypatch.setattr(inference, "answer_in_process", record)
+    warm_up(engine.model, 300, max_points=1234)
+    own = engine.model.info.work_pixels
+    side = math.isqrt(own)
+    assert answered == [((300, 300), own, 1234), ((side, side), own, 1234)]
 
 
 def test_the_warm_up_frame_asks_the_most_a_frame_of_its_side_can():
