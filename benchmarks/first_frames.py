@@ -26,7 +26,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import httpx
 import numpy as np
 
 from benchmarks.common import DOCS, cpu_description, write_markdown
@@ -71,9 +70,9 @@ def one_start(model: Path, frames: dict[str, list], workdir: Path) -> dict:
     with service_process(model, workdir / "serve.log", "--threads=2", "--frame-ms=100") as service:
         ready_s = time.perf_counter() - started
         memory_ready = memory_kib(service.pid)["rss"] / 1024
-        share = httpx.get(f"{service.url}/model").json()["frame_budget"]["frame_share"]
         timings: dict[str, dict[str, list]] = {name: {p: [] for p in PASSES} for name in frames}
         with Client(service.url) as client:
+            share = client.model()["frame_budget"]["frame_share"]
             for kind in PASSES:
                 for name, found in frames.items():
                     for frame_id, gray, sparse, K in found:

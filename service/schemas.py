@@ -211,7 +211,7 @@ class FrameBudgetInfo(BaseModel):
         "measured at start-up; null: not measured (a fixed budget)"
     )
     expected_p95_ms: float | None = Field(
-        description="the p95 frame expected at work_pixels on this CPU; null: not measured"
+        description="the p95 frame expected at frame_share on this CPU; null: not measured"
     )
     met: bool | None = Field(
         description="whether expected_p95_ms is within deadline_ms; false: this CPU is too "
