@@ -142,10 +142,12 @@ class Anchored:
     returns' residuals less the noise), the frame's ``noise_m`` (metres, the residuals' robust
     standard deviation), and where the returns on the mask are (``rows``, ``cols``) with the
     depth's ``residual`` there (metres, measured - predicted, before anchoring); ``apart_px``
-    is the distance to the nearest return in the grid's pixels."""
+    is the distance to the nearest return in the grid's pixels, ``nearest_m`` that return's
+    depth (metres)."""
 
     depth: np.ndarray
     apart_px: np.ndarray
+    nearest_m: np.ndarray
     apart_m: np.ndarray
     disagreement_m: np.ndarray
     misfit: np.ndarray
@@ -181,7 +183,7 @@ def anchor_to_returns(
     if len(rows) == 0:
         nothing = np.zeros(depth.shape, np.float32)
         none = np.zeros(0, np.float32)
-        return Anchored(depth, nothing, nothing, nothing, nothing, 0.0, rows, cols, none)
+        return Anchored(depth, nothing, nothing, nothing, nothing, nothing, 0.0, rows, cols, none)
     measured = sparse[rows, cols]
     residual = measured - depth[rows, cols]
     noise_m = min(
@@ -206,7 +208,7 @@ def anchor_to_returns(
     apart_m = apart_px * np.abs(corrected) / focal_px  # pixels -> metres
     disagreement_m = np.abs(corrected - nearest)
     return Anchored(
-        corrected, apart_px, apart_m, disagreement_m, misfit, noise_m, rows, cols, residual
+        corrected, apart_px, nearest, apart_m, disagreement_m, misfit, noise_m, rows, cols, residual
     )
 
 

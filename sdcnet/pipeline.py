@@ -23,8 +23,9 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    (``grown_past_field``), the probability resampled (onto a shrunk crop guided by the
    frame's own gray image:
    ``guided_probability``) and thresholded, the depth resampled without blending across
-   depth edges (``resample_depth``), within the box holding the mask alone (``mask_box``).
-   Outside the crop the answer is background.
+   depth edges (``resample_depth``; along them, on a shrunk crop, each frame pixel takes one
+   side's depth by its own gray and the returns nearby: ``sdcnet.edge_paste``), within the
+   box holding the mask alone (``mask_box``). Outside the crop the answer is background.
 
 The model is any callable ``(gray, sparse, focal_px) -> (depth, probability[, sigma])`` on
 (B, 1, h, w) float32 arrays and a (B, 1, 1, 1) focal length: onnxruntime in the service,
@@ -40,8 +41,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from sdcnet.anchoring import anchor_to_returns, anchored_sigma, spreading_sigma_px
+from sdcnet.anchoring import Anchored, anchor_to_returns, anchored_sigma, spreading_sigma_px
 from sdcnet.caveats import mask_iou_estimate
+from sdcnet.edge_paste import paste_across_edges
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
 from sdcnet.returns import return_pixels, scatter_nearest
 from sdcnet.surface import smoothed_between_returns
@@ -370,9 +372,15 @@ def nearest_resampled(
     pixel before it: on a crop the working grid enlarged 2.5 times, half a frame pixel, 0.17 m
     on a panel seen edge-on."""
     window = Region(0, shape[0], 0, shape[1]) if window is None else window
-    rows = (2 * np.arange(window.y0, window.y1) + 1) * image.shape[0] // (2 * shape[0])
-    cols = (2 * np.arange(window.x0, window.x1) + 1) * image.shape[1] // (2 * shape[1])
+    rows = source_indices(window.y0, window.y1, shape[0], image.shape[0])
+    cols = source_indices(window.x0, window.x1, shape[1], image.shape[1])
     return np.take(np.take(image, rows, axis=0), cols, axis=1)
+
+
+def source_indices(start: int, stop: int, size: int, source_size: int) -> np.ndarray:
+    """The source pixels under the centres of pixels ``start:stop`` along an axis of ``size``
+    pixels resampled from ``source_size`` (``nearest_resampled``)."""
+    return (2 * np.arange(start, stop) + 1) * source_size // (2 * size)
 
 
 #: A crop the working grid shrank gets its outline back from the frame's own gray image: the
@@ -382,6 +390,15 @@ GUIDE_RADIUS = 4
 #: ... and whose regularisation is this variance of the guide (the gray image scaled to 0.5
 #: at the returns' median, so that an 8-bit, a 12-bit and a dim frame are guided alike).
 GUIDE_EPS = 1e-3
+
+
+def guide_gain(gray: np.ndarray, sparse: np.ndarray) -> np.float32:
+    """What the working grid's ``gray`` (h, w) in [0, 1] is multiplied by to guide the paste
+    back: 0.5 at the median gray of its returns (``sparse`` (h, w) metres), so that an 8-bit,
+    a 12-bit and a dim frame are guided alike."""
+    returns = sparse > 0
+    reference = float(np.median(gray[returns])) if returns.any() else 0.5
+    return np.float32(0.5 / max(reference, 1e-3))
 
 
 def guided_probability(
@@ -400,9 +417,7 @@ def guided_probability(
     vouched for again by the returns at the frame's resolution (``complete``). Both bought
     0.2-1.9 points of IOU per condition of the robustness suite, with 0.3 false specks per
     frame or fewer (docs/development.md, "Measurements")."""
-    returns = sparse > 0
-    reference = float(np.median(gray[returns])) if returns.any() else 0.5
-    gain = np.float32(0.5 / max(reference, 1e-3))
+    gain = guide_gain(gray, sparse)
     guide = gray * gain
     size = (2 * GUIDE_RADIUS + 1, 2 * GUIDE_RADIUS + 1)
 
@@ -656,6 +671,41 @@ def past_the_field(
     return grown
 
 
+def edges_at_frame(
+    depth: np.ndarray,
+    box: Region,
+    shape: tuple[int, int],
+    surface: np.ndarray,
+    mask_w: np.ndarray,
+    inputs: WorkingInputs,
+    anchored: Anchored,
+    gray: np.ndarray,
+    footprint: float,
+) -> None:
+    """``depth``, the window ``box`` of a shrunk crop of ``shape`` pasted by nearest
+    neighbour from ``surface`` (metres on the working grid, its mask ``mask_w``), redrawn
+    along the grid's depth edges from the frame's ``gray`` and the returns nearest them
+    (``anchored``'s; ``sdcnet.edge_paste``), in place; ``footprint`` is a working pixel's
+    footprint in metres. Without a return on the mask, left as it is."""
+    if not len(anchored.rows):
+        return
+    gain = guide_gain(inputs.gray, inputs.sparse)
+    frame_gray = gray[inputs.grid.region.slices][box.slices]
+    paste_across_edges(
+        depth,
+        source_indices(box.y0, box.y1, shape[0], surface.shape[0]),
+        source_indices(box.x0, box.x1, shape[1], surface.shape[1]),
+        frame_gray,
+        float(gain) / gray_full_scale(frame_gray.dtype),
+        surface,
+        mask_w,
+        inputs.gray * gain,
+        anchored.nearest_m,
+        anchored.apart_px,
+        footprint,
+    )
+
+
 def complete(
     model: ModelFn,
     gray: np.ndarray,
@@ -702,6 +752,10 @@ def complete(
     mask = np.zeros(gray.shape, bool)
     mask[at.slices] = mask_crop[box.slices]
     depth = on_mask(resample_depth(surface, shape, footprint, box), mask, at)
+    if grid.scale[0] < 1.0:  # a shrunk crop: its depth edges drawn at the frame's resolution
+        edges_at_frame(
+            depth[at.slices], box, shape, surface, mask_w, inputs, anchored, gray, footprint
+        )
     sigma = served_w = None
     if sigma_w is not None:
         served_w = anchored_sigma(sigma_w, anchored, mask_w)

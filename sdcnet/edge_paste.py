@@ -1,0 +1,171 @@
+"""The depth of a shrunk crop's frame pixels along the working grid's depth edges.
+
+Where the working grid shrank the crop (a large spacecraft close to a 2048-px camera: four
+frame pixels a working pixel and more), each frame pixel takes the depth of the working pixel
+under its centre (``sdcnet.pipeline.nearest_resampled``). Along a depth edge, a boom before
+a panel, that working pixel may lie across the edge from the frame pixel: the frame's outline
+is finer than the grid's, and the network's depth there is one surface's or between the two.
+The classical fill, which copies the nearest return, keeps such edges; on the 2048-px docking
+frames the network's answer was worse than the fill's 3 to 10 pixels from a return.
+
+So where the surface steps (``edge_pixels``: its second difference above ``STEP_FOOTPRINTS``
+pixel footprints, not where it slopes, however steeply), each
+working pixel offers its frame pixels two depths, one of each side of the step: of the 3 x 3
+working pixels around it, the nearer and the farther surface's (split at the middle of their
+depths) that costs least by
+
+- ``DISTANCE_WEIGHT`` per working pixel from the centre, and
+- ``RETURN_WEIGHT`` per step (the spread of the 3 x 3 pixels' depths) between its depth
+  and that of the return nearest the working pixel, over 1 + that return's distance in
+  working pixels: a return close by says which surface is there, one farther away less so;
+
+and each frame pixel takes the one whose cost plus the difference between its gray and the
+frame pixel's own is least (joint bilateral upsampling's guide: a boom lit unlike the panel
+behind it), in the guide's units (the gray scaled to 0.5 at the returns' median, so that an
+8-bit, a 12-bit and a dim frame weigh alike).
+
+Chosen on the docking-2048 frames (docs/development.md, "Measurements").
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+#: A step: the surface's second difference above this many pixel footprints ...
+STEP_FOOTPRINTS = 4.0
+#: Cost of a candidate per working pixel between its centre and the working pixel's ...
+DISTANCE_WEIGHT = 0.05
+#: ... and per step (the 3 x 3 pixels' spread) between its depth and the nearest return's
+#: (module docstring).
+RETURN_WEIGHT = 1.0
+#: The 3 x 3 candidates, (row, column) offsets in working pixels, and their distances.
+OFFSETS = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+OFFSET_PX = np.hypot(OFFSETS[:, 0], OFFSETS[:, 1]).astype(np.float32)
+#: The four axes a step is looked for along, as kernels of the second difference.
+STEP_KERNELS = tuple(
+    np.array(k, np.float32)
+    for k in (
+        [[0, 0, 0], [1, -2, 1], [0, 0, 0]],
+        [[0, 1, 0], [0, -2, 0], [0, 1, 0]],
+        [[1, 0, 0], [0, -2, 0], [0, 0, 1]],
+        [[0, 0, 1], [0, -2, 0], [1, 0, 0]],
+    )
+)
+
+
+def edge_pixels(
+    surface: np.ndarray, mask: np.ndarray, edge_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rows and columns (E,) of the mask's working pixels where ``surface`` (h, w) float32
+    metres steps: its second difference along a row, a column or a diagonal (both neighbours
+    on the mask) above ``edge_m`` metres. A plane, however steep, has none."""
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    on = mask[y : y + h, x : x + w].view(np.uint8)
+    depth = surface[y : y + h, x : x + w]
+    found = np.zeros_like(on)
+    for kernel in STEP_KERNELS:
+        second = cv2.filter2D(depth, -1, kernel, borderType=cv2.BORDER_REPLICATE)
+        steps = cv2.compare(cv2.absdiff(second, 0.0), edge_m, cv2.CMP_GT)
+        # both neighbours on the mask: the mask eroded by the axis's three pixels
+        inside = cv2.erode(on, (kernel != 0).astype(np.uint8), borderValue=0)
+        cv2.bitwise_or(found, cv2.bitwise_and(steps, inside), dst=found)
+    rows, cols = np.nonzero(found)
+    return rows + y, cols + x
+
+
+def two_sides(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    surface: np.ndarray,
+    mask: np.ndarray,
+    guide: np.ndarray,
+    return_depth: np.ndarray,
+    return_px: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the working pixels at ``rows``, ``cols`` (E,), the nearer and the farther side's
+    candidate (module docstring): depth (metres), guide gray and cost, (E, 2) float32 each.
+    ``return_depth`` and ``return_px`` (h, w): the depth (metres) of the return nearest each
+    working pixel and its distance (working pixels)."""
+    h, w = surface.shape
+    ys = np.clip(rows[:, None] + OFFSETS[None, :, 0], 0, h - 1)
+    xs = np.clip(cols[:, None] + OFFSETS[None, :, 1], 0, w - 1)
+    depth = surface[ys, xs]  # (E, 9)
+    on = mask[ys, xs]
+    nearest = np.where(on, depth, np.inf).min(axis=1)
+    farthest = np.where(on, depth, -np.inf).max(axis=1)
+    # the return's term in units of the step, fading with the return's distance
+    weight = np.float32(RETURN_WEIGHT) / ((farthest - nearest) * (1.0 + return_px[rows, cols]))
+    cost = np.abs(depth - return_depth[rows, cols][:, None]) * weight[:, None]
+    cost += DISTANCE_WEIGHT * OFFSET_PX
+    cost[~on] = np.inf
+    nearer = depth <= (0.5 * (nearest + farthest))[:, None]
+    picks = np.stack(
+        [
+            np.argmin(np.where(nearer, cost, np.inf), axis=1),
+            np.argmin(np.where(nearer, np.inf, cost), axis=1),
+        ],
+        axis=1,
+    )
+    return (
+        np.take_along_axis(depth, picks, 1),
+        np.take_along_axis(guide[ys, xs], picks, 1),
+        np.take_along_axis(cost, picks, 1),
+    )
+
+
+def frame_pixels_under(
+    rows: np.ndarray, cols: np.ndarray, frame_rows: np.ndarray, frame_cols: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The frame pixels under the working pixels at ``rows``, ``cols`` (E,): their rows and
+    columns in the window and the index (0..E-1) of the working pixel each lies under.
+    ``frame_rows`` (H,) and ``frame_cols`` (W,), non-decreasing: the working row and column
+    under each of the window's rows and columns."""
+    first_row = np.searchsorted(frame_rows, rows, "left")
+    row_count = np.searchsorted(frame_rows, rows, "right") - first_row
+    first_col = np.searchsorted(frame_cols, cols, "left")
+    col_count = np.searchsorted(frame_cols, cols, "right") - first_col
+    span_y, span_x = int(row_count.max(initial=0)), int(col_count.max(initial=0))
+    dy = np.arange(span_y)[None, :, None]
+    dx = np.arange(span_x)[None, None, :]
+    inside = (dy < row_count[:, None, None]) & (dx < col_count[:, None, None])
+    owner, iy, ix = np.nonzero(inside)
+    return first_row[owner] + iy, first_col[owner] + ix, owner
+
+
+def paste_across_edges(
+    depth: np.ndarray,
+    frame_rows: np.ndarray,
+    frame_cols: np.ndarray,
+    frame_gray: np.ndarray,
+    frame_gain: float,
+    surface: np.ndarray,
+    mask: np.ndarray,
+    guide: np.ndarray,
+    return_depth: np.ndarray,
+    return_px: np.ndarray,
+    footprint_m: float,
+) -> None:
+    """Set ``depth`` (H, W) float32 metres, a shrunk crop's frame pixels (or a window of them)
+    pasted by nearest neighbour, along the working grid's depth edges (module docstring), in
+    place. ``frame_rows`` (H,) and ``frame_cols`` (W,): the working row and column under each
+    of its rows and columns; ``frame_gray`` (H, W), the frame's pixels (any dtype), and
+    ``frame_gain``, what turns them into the guide's units, in which ``guide`` (h, w) float32
+    is the working grid's gray; ``surface`` (h, w) float32
+    metres and ``mask`` (h, w) bool: what was pasted; ``return_depth`` and ``return_px``
+    (h, w): the depth (metres) of the return nearest each working pixel and its distance
+    (working pixels: ``sdcnet.anchoring.nearest_return``); ``footprint_m`` a working pixel's
+    footprint in metres. Frame pixels off the mask (``depth`` 0) stay so."""
+    rows, cols = edge_pixels(surface, mask, STEP_FOOTPRINTS * footprint_m)
+    if not len(rows):
+        return
+    side_depth, side_guide, side_cost = two_sides(
+        rows, cols, surface, mask, guide, return_depth, return_px
+    )
+    ys, xs, owner = frame_pixels_under(rows, cols, frame_rows, frame_cols)
+    on = depth[ys, xs] > 0
+    ys, xs, owner = ys[on], xs[on], owner[on]
+    own_guide = frame_gray[ys, xs] * np.float32(frame_gain)
+    near = side_cost[owner, 0] + np.abs(side_guide[owner, 0] - own_guide)
+    far = side_cost[owner, 1] + np.abs(side_guide[owner, 1] - own_guide)
+    depth[ys, xs] = np.where(far < near, side_depth[owner, 1], side_depth[owner, 0])
