@@ -45,15 +45,12 @@ MAX_EDGE_PIXELS = 16384
 #: The 3 x 3 candidates, (row, column) offsets in working pixels, and their distances.
 OFFSETS = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
 OFFSET_PX = np.hypot(OFFSETS[:, 0], OFFSETS[:, 1]).astype(np.float32)
-#: The four axes a step is looked for along, as kernels of the second difference.
-STEP_KERNELS = tuple(
-    np.array(k, np.float32)
-    for k in (
-        [[0, 0, 0], [1, -2, 1], [0, 0, 0]],
-        [[0, 1, 0], [0, -2, 0], [0, 1, 0]],
-        [[1, 0, 0], [0, -2, 0], [0, 0, 1]],
-        [[0, 0, 1], [0, -2, 0], [1, 0, 0]],
-    )
+#: The axes a step is looked for along, rows and columns, as kernels of the second
+#: difference (the diagonals too: the same answers within 1 mm a band on docking-2048, 1.6 ms
+#: more a frame at the median).
+STEP_KERNELS = (
+    np.array([[1, -2, 1]], np.float32),
+    np.array([[1], [-2], [1]], np.float32),
 )
 
 
@@ -61,8 +58,8 @@ def edge_pixels(
     surface: np.ndarray, mask: np.ndarray, edge_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """The rows and columns (E,) of the mask's working pixels where ``surface`` (h, w) float32
-    metres steps: its second difference along a row, a column or a diagonal (both neighbours
-    on the mask) above ``edge_m`` metres. A plane, however steep, has none. At most
+    metres steps: its second difference along a row or a column (both neighbours on the
+    mask) above ``edge_m`` metres. A plane, however steep, has none. At most
     ``MAX_EDGE_PIXELS``: those of the largest steps."""
     x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
     on = mask[y : y + h, x : x + w].view(np.uint8)
