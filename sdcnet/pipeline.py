@@ -402,11 +402,12 @@ def guide_gain(gray: np.ndarray, sparse: np.ndarray) -> np.float32:
 
 
 def guided_probability(
-    prob: np.ndarray, gray: np.ndarray, sparse: np.ndarray, gray_crop: np.ndarray
+    prob: np.ndarray, gray: np.ndarray, gain: np.float32, gray_crop: np.ndarray
 ) -> np.ndarray:
     """The working grid's foreground probability (``prob`` (h, w), beside its ``gray`` in
-    [0, 1] and ``sparse`` metres) on the crop's own grid (``gray_crop``: the frame's pixels,
-    uint8 or uint16, (H, W)), its outline drawn where the crop's gray image has it.
+    [0, 1], which ``gain`` makes the guide: ``guide_gain``) on the crop's own grid
+    (``gray_crop``: the frame's pixels, uint8 or uint16, (H, W)), its outline drawn where the
+    crop's gray image has it.
 
     Each working pixel's probability is fit as a linear function of the gray image over its
     window (``GUIDE_RADIUS``, ``GUIDE_EPS``); the fit's coefficients, averaged and resampled
@@ -417,7 +418,6 @@ def guided_probability(
     vouched for again by the returns at the frame's resolution (``complete``). Both bought
     0.2-1.9 points of IOU per condition of the robustness suite, with 0.3 false specks per
     frame or fewer (docs/development.md, "Measurements")."""
-    gain = guide_gain(gray, sparse)
     guide = gray * gain
     size = (2 * GUIDE_RADIUS + 1, 2 * GUIDE_RADIUS + 1)
 
@@ -680,16 +680,17 @@ def edges_at_frame(
     inputs: WorkingInputs,
     anchored: Anchored,
     gray: np.ndarray,
+    gain: np.float32,
     footprint: float,
 ) -> None:
     """``depth``, the window ``box`` of a shrunk crop of ``shape`` pasted by nearest
     neighbour from ``surface`` (metres on the working grid, its mask ``mask_w``), redrawn
-    along the grid's depth edges from the frame's ``gray`` and the returns nearest them
-    (``anchored``'s; ``sdcnet.edge_paste``), in place; ``footprint`` is a working pixel's
-    footprint in metres. Without a return on the mask, left as it is."""
+    along the grid's depth edges from the frame's ``gray`` (guided as the outline is, by
+    ``gain``: ``guide_gain``) and the returns nearest them (``anchored``'s;
+    ``sdcnet.edge_paste``), in place; ``footprint`` is a working pixel's footprint in metres.
+    Without a return on the mask, left as it is."""
     if not len(anchored.rows):
         return
-    gain = guide_gain(inputs.gray, inputs.sparse)
     frame_gray = gray[inputs.grid.region.slices][box.slices]
     paste_across_edges(
         depth,
@@ -738,9 +739,11 @@ def complete(
         anchored.depth, mask_w, anchored.rows, anchored.cols, footprint
     )
     shape = grid.region.shape
-    if grid.scale[0] < 1.0:  # a shrunk crop: its outline from the frame's own gray image
+    # a shrunk crop: its outline and its depth edges from the frame's own gray image
+    gain = guide_gain(inputs.gray, inputs.sparse) if grid.scale[0] < 1.0 else None
+    if gain is not None:
         crop = grid.region.slices
-        prob_crop = guided_probability(prob_w, inputs.gray, inputs.sparse, gray[crop])
+        prob_crop = guided_probability(prob_w, inputs.gray, gain, gray[crop])
         # the image guides the outline near stars and noise too: vouched for again, in frame px
         mask_crop = vouched_mask(prob_crop, sparse[crop], threshold)
     else:
@@ -752,9 +755,9 @@ def complete(
     mask = np.zeros(gray.shape, bool)
     mask[at.slices] = mask_crop[box.slices]
     depth = on_mask(resample_depth(surface, shape, footprint, box), mask, at)
-    if grid.scale[0] < 1.0:  # a shrunk crop: its depth edges drawn at the frame's resolution
+    if gain is not None:
         edges_at_frame(
-            depth[at.slices], box, shape, surface, mask_w, inputs, anchored, gray, footprint
+            depth[at.slices], box, shape, surface, mask_w, inputs, anchored, gray, gain, footprint
         )
     sigma = served_w = None
     if sigma_w is not None:

@@ -14,6 +14,7 @@ from sdcnet.pipeline import (
     complete,
     drop_specks,
     frame_work_pixels,
+    guide_gain,
     guided_probability,
     mask_box,
     region_around,
@@ -334,17 +335,20 @@ def iou_of(answer: np.ndarray, mask: np.ndarray) -> float:
 
 def test_the_guided_paste_back_puts_the_outline_where_the_image_has_it():
     mask, gray, prob, gray_w, sparse_w = outline_case()
-    guided = guided_probability(prob, gray_w, sparse_w, gray)
+    guided = guided_probability(prob, gray_w, guide_gain(gray_w, sparse_w), gray)
     assert iou_of(resample_image(prob, mask.shape), mask) < 0.96
     assert iou_of(guided, mask) > 0.995
     _, gray16, *inputs16 = outline_case(np.uint16)  # a 16-bit frame is guided alike
-    np.testing.assert_allclose(guided_probability(*inputs16, gray16), guided, atol=1e-3)
+    prob16, gray_w16, sparse_w16 = inputs16
+    guided16 = guided_probability(prob16, gray_w16, guide_gain(gray_w16, sparse_w16), gray16)
+    np.testing.assert_allclose(guided16, guided, atol=1e-3)
 
 
 def test_the_guided_paste_back_keeps_the_networks_outline_where_the_image_is_flat():
     _, _, prob, gray_w, sparse_w = outline_case()
     flat = np.full((500, 500), 120, np.uint8)
-    guided = guided_probability(prob, np.full_like(gray_w, 120 / 255), sparse_w, flat)
+    flat_w = np.full_like(gray_w, 120 / 255)
+    guided = guided_probability(prob, flat_w, guide_gain(flat_w, sparse_w), flat)
     assert iou_of(guided, resample_image(prob, flat.shape) > 0.5) > 0.99
 
 
