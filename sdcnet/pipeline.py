@@ -429,7 +429,7 @@ def guided_probability(
     slope = (mean(guide * prob) - mean_guide * mean_prob) / (variance + np.float32(GUIDE_EPS))
     offset = mean_prob - slope * mean_guide
     shape = gray_crop.shape
-    full_scale = float(gain) / float(np.iinfo(gray_crop.dtype).max)
+    full_scale = float(gain) / gray_full_scale(gray_crop.dtype)
     out = cv2.multiply(
         resample_image(mean(slope), shape), gray_crop, dtype=cv2.CV_32F, scale=full_scale
     )
