@@ -22,7 +22,7 @@ from scipy.stats import spearmanr
 from tqdm import tqdm
 
 from benchmarks.common import DOCS, write_markdown
-from sdcnet.caveats import MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU, frame_caveats
+from sdcnet.caveats import CAVEATS, MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU, frame_caveats
 from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.evaluation.scoring import network
 from sdcnet.metrics import frame_metrics
@@ -31,6 +31,8 @@ from sdcnet.runtime.onnx import OnnxModel
 
 #: A mask below this IOU is a poor one, which an answer should say it may be.
 POOR_IOU = 0.7
+#: The newest caveat: the "before" column counts the poor masks marked without it.
+NEWEST_CAVEAT = "crop_cut"
 #: Edges of the estimate's bins in the calibration table.
 BINS = (0.0, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0)
 
@@ -69,7 +71,7 @@ def set_summary(rows: list[dict]) -> dict:
     iou = np.array([r["iou"] for r in rows])
     estimate = np.array([r["estimate"] for r in rows])
     poor = iou < POOR_IOU
-    before = np.array([any(c != "mask_uncertain" for c in r["caveats"]) for r in rows])
+    before = np.array([any(c != NEWEST_CAVEAT for c in r["caveats"]) for r in rows])
     flagged = np.array([bool(r["caveats"]) for r in rows])
     return {
         "frames": len(rows),
@@ -105,6 +107,28 @@ def calibration(rows: list[dict]) -> list[dict]:
     return out
 
 
+def per_caveat(rows: list[dict]) -> list[dict]:
+    """Per caveat code: the frames it marks, their mean IOU and the others', and the poor
+    masks it marks, and marks alone."""
+    iou = np.array([r["iou"] for r in rows])
+    poor = iou < POOR_IOU
+    out = []
+    for code in CAVEATS:
+        marked = np.array([code in r["caveats"] for r in rows])
+        alone = np.array([r["caveats"] == [code] for r in rows])
+        out.append(
+            {
+                "code": code,
+                "marked": int(marked.sum()),
+                "iou_marked": float(iou[marked].mean()) if marked.any() else float("nan"),
+                "iou_unmarked": float(iou[~marked].mean()) if (~marked).any() else float("nan"),
+                "poor_marked": int((poor & marked).sum()),
+                "poor_marked_alone": int((poor & alone).sum()),
+            }
+        )
+    return out
+
+
 def fitted_exponent(rows: list[dict]) -> float:
     """The exponent of ``expected_iou`` that fits the IOU measured on ``rows`` best (least
     squares, to 0.01): how ``MASK_IOU_EXPONENT`` was chosen, on the validation frames."""
@@ -136,6 +160,20 @@ def sets_table(summaries: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def caveats_table(codes: list[dict]) -> str:
+    lines = [
+        f"| caveat | frames marked | IOU marked / not % | IOU < {pct(POOR_IOU)} % marked | "
+        "of which by it alone |",
+        "|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| `{c['code']}` | {c['marked']} | {pct(c['iou_marked'])} / {pct(c['iou_unmarked'])} | "
+        f"{c['poor_marked']} | {c['poor_marked_alone']} |"
+        for c in codes
+    ]
+    return "\n".join(lines)
+
+
 def calibration_table(bins: list[dict]) -> str:
     lines = ["| estimate | frames | mean estimate % | mean IOU % |", "|---|---|---|---|"]
     lines += [
@@ -164,6 +202,8 @@ def main(argv: list[str] | None = None) -> int:
     summaries = {spec: set_summary(r) for spec, r in rows.items()}
     unseen = [row for spec, r in rows.items() if spec != args.fitted_on for row in r]
     bins = calibration(unseen)
+    codes = per_caveat(unseen)
+    poor_unseen = sum(row["iou"] < POOR_IOU for row in unseen)
     fitted = (
         f"Fitted on its {len(rows[args.fitted_on])} frames again, the least-squares exponent is "
         f"{fitted_exponent(rows[args.fitted_on]):.2f}."
@@ -178,8 +218,8 @@ network's own foreground probability p on the working grid: (sum of p on the mas
 pixels + sum of p off it)) ** {MASK_IOU_EXPONENT}, the exponent fitted on `{args.fitted_on}`;
 below {UNCERTAIN_MASK_IOU} it carries the caveat `mask_uncertain`. {fitted}
 Per set, the estimate beside the IOU measured (means over frames), and the poor masks (IOU
-below {pct(POOR_IOU)} %) that a caveat marks: before, by `few_returns` or `lidar_field_cut`;
-now, by any of the three.
+below {pct(POOR_IOU)} %) that a caveat marks: before, by any but `{NEWEST_CAVEAT}`; now, by any
+of the {len(CAVEATS)}.
 Model `{args.onnx}`. Regenerate: `{command}`
 
 {sets_table(summaries)}
@@ -187,10 +227,18 @@ Model `{args.onnx}`. Regenerate: `{command}`
 Every set but `{args.fitted_on}`, the frames binned by their estimate:
 
 {calibration_table(bins)}
+
+Every set but `{args.fitted_on}`, per caveat ({len(unseen)} frames, {poor_unseen} of them
+below {pct(POOR_IOU)} %):
+
+{caveats_table(codes)}
 """
     print(write_markdown("mask_trust", "Whether an answer says when its mask is poor", body))
     (DOCS / "mask_trust.json").write_text(
-        json.dumps({"sets": summaries, "calibration": bins, "frames": rows}, indent=1) + "\n"
+        json.dumps(
+            {"sets": summaries, "calibration": bins, "caveats": codes, "frames": rows}, indent=1
+        )
+        + "\n"
     )
     return 0
 

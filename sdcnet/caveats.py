@@ -7,7 +7,9 @@ own foreground probability (``mask_iou_estimate``), and by code (``POST /complet
 (docs/service.md, "Caveats"): fewer than ``FEW_RETURNS`` returns, where the image alone must
 say how far the spacecraft reaches; a LIDAR field that ended across the spacecraft, where what
 lies beyond its edge comes from the image alone (most of the masks' misses on the other
-LIDARs); and a mask whose estimate is below ``UNCERTAIN_MASK_IOU``, whatever the reason.
+LIDARs); a mask that reaches the side of the region the network was shown, where the
+spacecraft goes on beyond the LIDAR's returns and out of the network's sight; and a mask whose
+estimate is below ``UNCERTAIN_MASK_IOU``, whatever the reason.
 """
 
 from __future__ import annotations
@@ -30,6 +32,9 @@ FEW_RETURNS = 20
 MASK_IOU_EXPONENT = 1.9
 #: A frame whose ``mask_iou_estimate`` is below this gets the caveat ``mask_uncertain``.
 UNCERTAIN_MASK_IOU = 0.7
+#: A mask with a pixel within this many frame pixels of a side of the network's crop that lies
+#: inside the frame gets the caveat ``crop_cut``.
+CROP_EDGE_PX = 2
 
 #: Each caveat's code and what it means for the answer.
 CAVEATS = {
@@ -37,6 +42,9 @@ CAVEATS = {
     "rests on the image alone; parts may be missing or background taken for it",
     "lidar_field_cut": "the LIDAR's field ended across the spacecraft: the mask past its edge "
     "comes from the image alone, and parts there may be missing",
+    "crop_cut": "the mask reaches the side of the region around the LIDAR's returns that the "
+    "network was shown, inside the image: the spacecraft goes on beyond it, where parts are "
+    "missing from the mask",
     "mask_uncertain": f"the mask's IOU as the network's own foreground probability expects it "
     f"(mask_iou_estimate) is below {UNCERTAIN_MASK_IOU:.2f}: much of its outline is in doubt",
 }
@@ -73,12 +81,31 @@ def mask_iou_estimate(probability: np.ndarray, mask: np.ndarray) -> float:
     return expected_iou(probability, mask) ** MASK_IOU_EXPONENT
 
 
+def reaches_crop_side(completion: Completion) -> bool:
+    """Whether the frame's mask has a pixel within ``CROP_EDGE_PX`` of a side of the network's
+    crop (``completion.region``) that is not the frame's own border. The crop is the returns'
+    box with a margin (grown past a LIDAR field's cut): a mask that fills it to a side is a
+    spacecraft that goes on where no return reached and the network did not look, so the
+    mask holds nothing of it there."""
+    region, (rows, cols) = completion.region, completion.frame_shape
+    window = completion.mask_crop
+    edge = CROP_EDGE_PX
+    sides = (
+        (region.y0 > 0, window[:edge]),
+        (region.y1 < rows, window[-edge:]),
+        (region.x0 > 0, window[:, :edge]),
+        (region.x1 < cols, window[:, -edge:]),
+    )
+    return any(inside and bool(band.any()) for inside, band in sides)
+
+
 def frame_caveats(completion: Completion, returns: int) -> list[str]:
     """The codes of ``CAVEATS`` that hold for a completed frame with ``returns`` LIDAR
     returns, in ``CAVEATS``' order; empty when none does."""
     holds = {
         "few_returns": returns < FEW_RETURNS,
         "lidar_field_cut": completion.cuts is not None,
+        "crop_cut": reaches_crop_side(completion),
         "mask_uncertain": completion.mask_iou_estimate < UNCERTAIN_MASK_IOU,
     }
     return [code for code in CAVEATS if holds[code]]

@@ -41,6 +41,9 @@ def test_a_frame_with_few_returns_says_so():
     assert caveats_of(gray, sparse) == []
     sparse[:, 420:] = 0  # the same spacecraft, a handful of its returns left
     assert 0 < np.count_nonzero(sparse) < FEW_RETURNS
+    # ... on its left end: the rest of it, in sight, runs past the crop around them
+    assert caveats_of(gray, sparse) == ["few_returns", "crop_cut"]
+    gray[:, 420:] = 0  # a spacecraft as small as its returns say
     assert caveats_of(gray, sparse) == ["few_returns"]
 
 
@@ -50,6 +53,24 @@ def test_a_lidar_field_ending_across_the_spacecraft_says_so():
     dark = gray.copy()
     dark[:, 500:] = 0  # the image ends with the returns: the spacecraft does, not the field
     assert caveats_of(dark, sparse) == []
+
+
+def test_a_mask_that_reaches_the_side_of_its_crop_says_so():
+    """The LIDAR hit a bus (rows 400-600, columns 300-500) and not the boom bright beside it
+    (columns 500-1000): the crop is the bus's with a margin, and the mask, following the
+    image, fills it to its right side. Where the frame's own border is that side, nothing
+    is said: the frame, not the crop, cut the spacecraft."""
+    gray, sparse = frame(box=(400, 600, 300, 500))
+    assert caveats_of(gray, sparse) == []
+    boom = gray.copy()
+    boom[480:520, 500:1000] = 200
+    result = complete(bright_model([]), boom, sparse, FX, stride=64)
+    assert result.region.x1 < 1000  # the crop ends before the boom does
+    assert result.mask[500, result.region.x1 - 1]
+    assert frame_caveats(result, int(np.count_nonzero(sparse))) == ["crop_cut"]
+    at_border = frame(box=(400, 600, 0, 200))  # the bus cut by the frame's left border
+    assert complete(bright_model([]), *at_border, FX, stride=64).region.x0 == 0
+    assert caveats_of(*at_border) == []
 
 
 def test_the_expected_iou_is_the_probabilitys_intersection_over_its_union():
@@ -82,5 +103,5 @@ def test_a_mask_the_network_doubts_says_so():
 
 
 def test_every_code_has_a_meaning():
-    assert set(CAVEATS) == {"few_returns", "lidar_field_cut", "mask_uncertain"}
+    assert set(CAVEATS) == {"few_returns", "lidar_field_cut", "crop_cut", "mask_uncertain"}
     assert all(len(meaning) > 40 for meaning in CAVEATS.values())
