@@ -22,7 +22,13 @@ from scipy.stats import spearmanr
 from tqdm import tqdm
 
 from benchmarks.common import DOCS, write_markdown
-from sdcnet.caveats import CAVEATS, MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU, frame_caveats
+from sdcnet.caveats import (
+    CAVEATS,
+    CROP_CUT_IOU_FACTOR,
+    MASK_IOU_EXPONENT,
+    UNCERTAIN_MASK_IOU,
+    frame_caveats,
+)
 from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.evaluation.scoring import network
 from sdcnet.metrics import frame_metrics
@@ -31,8 +37,6 @@ from sdcnet.runtime.onnx import OnnxModel
 
 #: A mask below this IOU is a poor one, which an answer should say it may be.
 POOR_IOU = 0.7
-#: The newest caveat: the "before" column counts the poor masks marked without it.
-NEWEST_CAVEAT = "crop_cut"
 #: Edges of the estimate's bins in the calibration table.
 BINS = (0.0, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0)
 
@@ -71,7 +75,7 @@ def set_summary(rows: list[dict]) -> dict:
     iou = np.array([r["iou"] for r in rows])
     estimate = np.array([r["estimate"] for r in rows])
     poor = iou < POOR_IOU
-    before = np.array([any(c != NEWEST_CAVEAT for c in r["caveats"]) for r in rows])
+    before = np.array([marked_before_crop_cut(r) for r in rows])
     flagged = np.array([bool(r["caveats"]) for r in rows])
     return {
         "frames": len(rows),
@@ -86,6 +90,17 @@ def set_summary(rows: list[dict]) -> dict:
         "iou_marked": float(iou[flagged].mean()) if flagged.any() else float("nan"),
         "iou_unmarked": float(iou[~flagged].mean()) if (~flagged).any() else float("nan"),
     }
+
+
+def marked_before_crop_cut(row: dict) -> bool:
+    """Whether a frame carried a caveat before ``crop_cut`` came (with its factor of the
+    estimate): ``few_returns``, ``lidar_field_cut``, or the estimate without the factor below
+    ``UNCERTAIN_MASK_IOU``."""
+    estimate = row["estimate"]
+    if "crop_cut" in row["caveats"]:
+        estimate /= CROP_CUT_IOU_FACTOR
+    codes = set(row["caveats"]) & {"few_returns", "lidar_field_cut"}
+    return bool(codes) or estimate < UNCERTAIN_MASK_IOU
 
 
 def calibration(rows: list[dict]) -> list[dict]:
@@ -131,12 +146,27 @@ def per_caveat(rows: list[dict]) -> list[dict]:
 
 def fitted_exponent(rows: list[dict]) -> float:
     """The exponent of ``expected_iou`` that fits the IOU measured on ``rows`` best (least
-    squares, to 0.01): how ``MASK_IOU_EXPONENT`` was chosen, on the validation frames."""
-    raw = np.array([r["estimate"] for r in rows]) ** (1 / MASK_IOU_EXPONENT)
+    squares, to 0.01): how ``MASK_IOU_EXPONENT`` was chosen, on the validation frames. The
+    frames that carry ``crop_cut`` count with their estimate's factor taken out."""
+    estimate = np.array([r["estimate"] for r in rows])
+    cut = np.array(["crop_cut" in r["caveats"] for r in rows])
+    raw = np.where(cut, estimate / CROP_CUT_IOU_FACTOR, estimate) ** (1 / MASK_IOU_EXPONENT)
     iou = np.array([r["iou"] for r in rows])
     exponents = np.arange(0.5, 4.0, 0.01)
     errors = [np.sum((raw**e - iou) ** 2) for e in exponents]
     return float(exponents[int(np.argmin(errors))])
+
+
+def fitted_crop_cut_factor(rows: list[dict]) -> tuple[float, int]:
+    """The factor of the estimate that fits the IOU measured best (least squares) on those of
+    ``rows`` that carry ``crop_cut``, and how many they are: how ``CROP_CUT_IOU_FACTOR`` was
+    chosen, on the validation frames."""
+    cut = [r for r in rows if "crop_cut" in r["caveats"]]
+    if not cut:
+        return float("nan"), 0
+    raw = np.array([r["estimate"] for r in cut]) / CROP_CUT_IOU_FACTOR
+    iou = np.array([r["iou"] for r in cut])
+    return float(np.dot(raw, iou) / np.dot(raw, raw)), len(cut)
 
 
 def pct(value: float) -> str:
@@ -204,22 +234,27 @@ def main(argv: list[str] | None = None) -> int:
     bins = calibration(unseen)
     codes = per_caveat(unseen)
     poor_unseen = sum(row["iou"] < POOR_IOU for row in unseen)
-    fitted = (
-        f"Fitted on its {len(rows[args.fitted_on])} frames again, the least-squares exponent is "
-        f"{fitted_exponent(rows[args.fitted_on]):.2f}."
-        if args.fitted_on in rows
-        else f"(`{args.fitted_on}` not among the sets: the exponent not fitted again.)"
-    )
+    if args.fitted_on in rows:
+        factor, cut = fitted_crop_cut_factor(rows[args.fitted_on])
+        fitted = (
+            f"Fitted on its {len(rows[args.fitted_on])} frames again, the least-squares exponent "
+            f"is {fitted_exponent(rows[args.fitted_on]):.2f}, and the factor on its {cut} frames "
+            f"that carry `crop_cut` {factor:.2f}."
+        )
+    else:
+        fitted = f"(`{args.fitted_on}` not among the sets: the exponent not fitted again.)"
     command = f"python -m benchmarks.mask_trust --onnx {args.onnx} --sets {' '.join(args.sets)}"
     command += f" --limit {args.limit}" if args.limit else ""
     body = f"""
 Each answer carries `mask_iou_estimate`, the IOU its mask is likely to score, from the
 network's own foreground probability p on the working grid: (sum of p on the mask / (mask
-pixels + sum of p off it)) ** {MASK_IOU_EXPONENT}, the exponent fitted on `{args.fitted_on}`;
-below {UNCERTAIN_MASK_IOU} it carries the caveat `mask_uncertain`. {fitted}
+pixels + sum of p off it)) ** {MASK_IOU_EXPONENT}, times {CROP_CUT_IOU_FACTOR} where the mask
+reached its crop's side (`crop_cut`), both fitted on `{args.fitted_on}`; below
+{UNCERTAIN_MASK_IOU} it carries the caveat `mask_uncertain`. {fitted}
 Per set, the estimate beside the IOU measured (means over frames), and the poor masks (IOU
-below {pct(POOR_IOU)} %) that a caveat marks: before, by any but `{NEWEST_CAVEAT}`; now, by any
-of the {len(CAVEATS)}.
+below {pct(POOR_IOU)} %) that a caveat marks: before `crop_cut`, by `few_returns`,
+`lidar_field_cut` or the estimate without its factor below {UNCERTAIN_MASK_IOU}; now, by any of
+the {len(CAVEATS)}.
 Model `{args.onnx}`. Regenerate: `{command}`
 
 {sets_table(summaries)}

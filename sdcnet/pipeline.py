@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 
 from sdcnet.anchoring import Anchored, anchor_to_returns, anchored_sigma, spreading_sigma_px
-from sdcnet.caveats import mask_iou_estimate
+from sdcnet.caveats import mask_iou_estimate, reaches_crop_side
 from sdcnet.edge_paste import paste_across_edges
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
 from sdcnet.returns import return_pixels, scatter_nearest
@@ -460,6 +460,9 @@ class Completion:
     #: the IOU the mask is likely to score, from the network's own foreground probability on
     #: the working grid (``sdcnet.caveats.mask_iou_estimate``)
     mask_iou_estimate: float = 1.0
+    #: whether the mask reached a side of the crop inside the frame: the spacecraft goes on
+    #: beyond what the network saw (``sdcnet.caveats.reaches_crop_side``)
+    crop_cut: bool = False
 
     @property
     def region(self) -> Region:
@@ -763,6 +766,7 @@ def complete(
     if sigma_w is not None:
         served_w = anchored_sigma(sigma_w, anchored, mask_w)
         sigma = on_mask(resample_depth(served_w, shape, math.inf, box), mask, at)
+    crop_cut = reaches_crop_side(mask_crop, grid.region, gray.shape)
     return Completion(
         depth,
         mask,
@@ -774,5 +778,6 @@ def complete(
         sigma,
         served_w,
         inputs.cuts,
-        mask_iou_estimate(prob_w, mask_w),
+        mask_iou_estimate(prob_w, mask_w, crop_cut),
+        crop_cut,
     )

@@ -7,7 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from sdcnet.caveats import CAVEATS, MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU
+from sdcnet.caveats import CAVEATS, CROP_CUT_IOU_FACTOR, MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU
 
 
 class ResponseFormat(StrEnum):
@@ -122,7 +122,8 @@ class FrameSummary(BaseModel):
         le=1.0,
         description="the IOU the mask is likely to score against the spacecraft's true "
         "outline, from the network's own foreground probability p: (sum of p on the mask / "
-        f"(mask pixels + sum of p off it)) ** {MASK_IOU_EXPONENT}; below "
+        f"(mask pixels + sum of p off it)) ** {MASK_IOU_EXPONENT}, times "
+        f"{CROP_CUT_IOU_FACTOR} with the caveat crop_cut; below "
         f"{UNCERTAIN_MASK_IOU} the caveat mask_uncertain (docs/service.md, Caveats: how it "
         "compares with the IOU measured)",
     )

@@ -6,6 +6,7 @@ import pytest
 
 from sdcnet.caveats import (
     CAVEATS,
+    CROP_CUT_IOU_FACTOR,
     FEW_RETURNS,
     MASK_IOU_EXPONENT,
     UNCERTAIN_MASK_IOU,
@@ -68,9 +69,12 @@ def test_a_mask_that_reaches_the_side_of_its_crop_says_so():
     assert result.region.x1 < 1000  # the crop ends before the boom does
     assert result.mask[500, result.region.x1 - 1]
     assert frame_caveats(result, int(np.count_nonzero(sparse))) == ["crop_cut"]
+    # sure of its outline on what it saw, not of what lies beyond: the estimate lowered
+    assert result.mask_iou_estimate == pytest.approx(CROP_CUT_IOU_FACTOR)
     at_border = frame(box=(400, 600, 0, 200))  # the bus cut by the frame's left border
-    assert complete(bright_model([]), *at_border, FX, stride=64).region.x0 == 0
-    assert caveats_of(*at_border) == []
+    result = complete(bright_model([]), *at_border, FX, stride=64)
+    assert result.region.x0 == 0 and result.mask[500, 0]
+    assert caveats_of(*at_border) == [] and result.mask_iou_estimate == 1.0
 
 
 def test_the_expected_iou_is_the_probabilitys_intersection_over_its_union():
