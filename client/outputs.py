@@ -142,7 +142,7 @@ def summary(result: Completion, url: str, written: list[Path]) -> str:
     stride = meta.get("cloud_stride", 1)
     thinned = f"; one per {stride} px in rows and columns" if stride > 1 else ""
     iou = meta.get("mask_iou_estimate")
-    estimate = f", IOU {100 * iou:.0f} % as the network expects it" if iou is not None else ""
+    estimate = f", IOU {100 * iou:.1f} % as the network expects it" if iou is not None else ""
     lines = [
         f"sdcnet {result.model_version} on {result.provider} at {url}",
         f"  image     {width} x {height}, {meta.get('returns', '?')} LIDAR returns",

@@ -134,7 +134,7 @@ def test_infer_writes_five_files_that_match_the_service(url, frame_files, tmp_pa
     # enough returns, and the field holds the spacecraft; but the tiny model's probability is
     # the gray image, 0.59-0.90 on the craft: its estimate of the mask's IOU is low
     estimate = service_summary(url, gray.read_bytes(), sparse.read_bytes())["mask_iou_estimate"]
-    assert f", IOU {100 * estimate:.0f} % as the network expects it" in printed
+    assert f", IOU {100 * estimate:.1f} % as the network expects it" in printed
     caveats = [line.split(":")[0].split()[-1] for line in printed.splitlines() if "caveat" in line]
     assert caveats == ["mask_uncertain"]
 
