@@ -75,6 +75,13 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_factors(args: argparse.Namespace) -> int:
+    from sdcnet.evaluation.factors import run_factors
+
+    print(run_factors(methods_of(args), args.data, args.split, args.limit, Path(args.out)))
+    return 0
+
+
 def cmd_pose(args: argparse.Namespace) -> int:
     settings = {f.name: getattr(args, f.name) for f in fields(PoseRun)}
     run_pose(
@@ -167,6 +174,19 @@ def parser() -> argparse.ArgumentParser:
     o.add_argument("--gallery", type=int, default=4, help="frames per condition's picture")
     o.add_argument("--out", default="docs/robustness", help="robustness.md, .json, galleries")
     o.set_defaults(func=cmd_robustness, floor=False)
+
+    f = sub.add_parser(
+        "factors",
+        help="IOU by each factor a frame records (background, LIDAR, range, camera, sensor) "
+        "on frames drawing every factor at once (a dataset of the `any` world)",
+    )
+    add_method_flags(f, "checkpoints (the first one's deficit is shared out)", "ONNX models")
+    f.add_argument("--data", required=True, help="e.g. `sdc-data generate --world any` frames")
+    f.add_argument("--split", default="test")
+    f.add_argument("--floor", action="store_true", help=fill_help)
+    f.add_argument("--limit", type=int, help="this many frames (evenly spread)")
+    f.add_argument("--out", default="docs/factors", help="factors.md and factors.json")
+    f.set_defaults(func=cmd_factors)
 
     add_pose_parser(sub)
 
