@@ -304,6 +304,20 @@ def test_complete_drops_stars_from_the_mask_and_the_depth():
     assert result.mask[420:580, 320:680].all()
 
 
+def test_a_12_bit_frame_in_the_low_bits_is_answered_as_in_the_top_bits():
+    """The stand-in network sees gray above half of full scale: a 12-bit camera's 3200 reads
+    0.78 in a 16-bit image's top bits and 0.05 in its low bits, unless the pipeline moves it."""
+    gray, sparse = frame()
+    low_bits = gray.astype(np.uint16) * 16  # the spacecraft at 3200 of 4095
+    low = complete(bright_model([]), low_bits, sparse, FX, stride=64)
+    top = complete(bright_model([]), low_bits << 4, sparse, FX, stride=64)
+    assert low.mask[420:580, 320:680].all()
+    np.testing.assert_array_equal(low.mask, top.mask)
+    np.testing.assert_array_equal(low.depth, top.depth)
+    low_bits[0, 0] = 4096  # a pixel past 12 bits: a dark 16-bit frame, taken as it is
+    assert not complete(bright_model([]), low_bits, sparse, FX, stride=64).mask.any()
+
+
 def test_bad_focal_lengths_and_sizes_are_refused():
     gray, sparse = frame(256, box=(100, 150, 100, 150))
     for focal in (0.0, -5.0, float("nan"), float("inf")):
