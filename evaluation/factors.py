@@ -64,10 +64,16 @@ def _returns_on_target(sample: Sample) -> int:
     return int(np.count_nonzero((sample.sparse > 0) & sample.mask))
 
 
+def _offset(sample: Sample) -> str:
+    metres = float(np.linalg.norm(sample.meta["lidar"]["offset_m"]))
+    return "none" if metres == 0 else binned(metres, (0.1,), " m")
+
+
 #: The factors, in the table's order: name -> the frame's bin.
 FACTORS: dict[str, FactorFn] = {
     "background": lambda s: s.meta["background"]["kind"],
     "LIDAR": lambda s: s.meta["lidar"]["kind"],
+    "LIDAR's offset from the camera": lambda s: _offset(s),
     "returns on the spacecraft": lambda s: binned(_returns_on_target(s), (1, 30, 300, 3000)),
     "spacecraft's pixels": lambda s: binned(
         int(np.count_nonzero(s.mask)), (2_000, 20_000, 100_000, 400_000)
@@ -76,6 +82,7 @@ FACTORS: dict[str, FactorFn] = {
     "horizontal field of view": lambda s: binned(_hfov_deg(s), (10, 20, 40), " deg"),
     "image width": lambda s: f"{s.meta['intrinsics']['width']} px",
     "bits": lambda s: f"{s.meta['sensor']['bits']}",
+    "transfer curve (gamma)": lambda s: f"{s.meta['sensor']['gamma']:g}",
     "JPEG": lambda s: "yes" if s.meta["sensor"]["jpeg_quality"] else "no",
     "exposure (white surface, of full scale)": lambda s: binned(
         s.meta["sensor"]["exposure"], (0.3, 1.0, 2.5)
