@@ -160,12 +160,46 @@ def factors_table(frames: list[FrameFactors]) -> str:
     return "\n".join(lines)
 
 
+def factors_figure(frames: list[FrameFactors], path: Path) -> None:
+    """``factors.png``: one panel a factor, each value's mean IOU per method as bars, its
+    frames counted beside its name; the dashed line is the first method's mean over all."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(frames[0].iou)
+    overall = factor_rows(frames, None)[0]["iou"][names[0]]
+    cols = 4
+    fig, axes = plt.subplots(-(-len(FACTORS) // cols), cols, figsize=(4.2 * cols, 11))
+    height = 0.8 / len(names)
+    for ax, factor in zip(axes.flat, FACTORS, strict=False):
+        rows = factor_rows(frames, factor)
+        for i, name in enumerate(names):
+            y = [k + (i - (len(names) - 1) / 2) * height for k in range(len(rows))]
+            ax.barh(y, [r["iou"][name] for r in rows], height, label=name)
+        ax.set_yticks(range(len(rows)), [f"{r['value']} ({r['frames']})" for r in rows])
+        ax.invert_yaxis()
+        ax.axvline(overall, color="k", linestyle="--", linewidth=0.8)
+        ax.set_xlim(0, 100)
+        ax.set_title(factor, fontsize=10)
+        ax.tick_params(labelsize=8)
+    for ax in axes.flat[len(FACTORS) :]:
+        ax.axis("off")
+    fig.legend(*axes.flat[0].get_legend_handles_labels(), loc="lower right", fontsize=10)
+    fig.supxlabel("IOU % (frames of each value in brackets)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=72)
+    plt.close(fig)
+
+
 def run_factors(
     methods: dict[str, Method], data: str, split: str, limit: int | None, out: Path
 ) -> str:
     """Score ``methods`` on ``limit`` frames (evenly spread; None: all) of ``split`` of the
-    dataset at ``data``; write ``factors.md`` (the table) and ``factors.json`` (it and every
-    frame's factors and IOU) to ``out``; return the markdown."""
+    dataset at ``data``; write ``factors.md`` (the table), ``factors.png`` (``factors_figure``)
+    and ``factors.json`` (the table and every frame's factors and IOU) to ``out``; return the
+    markdown."""
     store = SampleStore(data)
     records = store.split(split, limit)
     if not records:
@@ -177,11 +211,15 @@ def run_factors(
         f"{len(frames)} frames of the {split} split of `{data}`"
         + (f" (`{made}`)" if made else "")
         + ": IOU of each method's mask, mean over the frames holding each value; the share of "
-        "the first method's deficit (sum of 1 - IOU) those frames hold. "
-        "Regenerate: `sdc-eval factors` with the same flags.\n\n" + factors_table(frames) + "\n"
+        "the first method's deficit (sum of 1 - IOU) those frames hold. Factors are drawn "
+        "together, so a value's mean carries the others' mixture with it. "
+        "Regenerate: `sdc-eval factors` with the same flags.\n\n![IOU by factor](factors.png)\n\n"
+        + factors_table(frames)
+        + "\n"
     )
     out.mkdir(parents=True, exist_ok=True)
     (out / "factors.md").write_text(text)
+    factors_figure(frames, out / "factors.png")
     report = {
         "data": data,
         "split": split,

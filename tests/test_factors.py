@@ -62,3 +62,4 @@ def test_rendered_frames_are_grouped_by_what_their_metadata_records(tmp_path):
         assert sum(row["frames"] for row in report["factors"][factor]) == len(samples)
     table = (out / "factors.md").read_text()
     assert all(f"| {factor} |" in table for factor in FACTORS)
+    assert (out / "factors.png").stat().st_size > 10_000
