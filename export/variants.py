@@ -19,7 +19,7 @@ from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantTy
 from onnxruntime.quantization.shape_inference import quant_pre_process
 from onnxruntime.transformers.float16 import convert_float_to_float16
 
-from sdcnet.pipeline import working_inputs
+from sdcnet.pipeline import in_top_bits, working_inputs
 
 
 def to_fp16(source: str | Path, target: str | Path) -> Path:
@@ -40,7 +40,8 @@ class RegionReader(CalibrationDataReader):
         frame = next(self._frames, None)
         if frame is None:
             return None
-        inputs = working_inputs(*frame, self.stride)
+        gray, sparse, focal_px = frame
+        inputs = working_inputs(in_top_bits(gray), sparse, focal_px, self.stride)
         return {
             "gray": inputs.gray[None, None],
             "sparse": inputs.sparse[None, None],

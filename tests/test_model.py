@@ -442,6 +442,22 @@ def test_whole_target_items_hold_the_parts_no_return_reached(tmp_path):
         TileDataset(store, store.records, stride=64, whole_target_share=1.5)
 
 
+def test_a_training_item_reads_a_12_bit_frame_in_the_low_bits_as_the_service_does(tmp_path):
+    """The same frame from a 12-bit camera, its values in a 16-bit image's top bits and in
+    its low bits: one training item, as the pipeline answers both alike (``in_top_bits``)."""
+    root = write_dataset(tmp_path / "data", {"train": 2}, size=256)
+    store = SampleStore(root)
+    top, low = (store.load(r) for r in store.records)
+    top.gray = top.gray.astype(np.uint16) << 8  # 12-bit values in the top bits
+    low.gray, low.sparse, low.depth = top.gray >> 4, top.sparse, top.depth
+    for record, sample in zip(store.records, (top, low), strict=True):
+        sample.meta["intrinsics"] = PAPER_CAMERA.intrinsics().scaled(256, 256).as_dict()
+        write_sample(root / record["file"], sample)
+    items = TileDataset(store, store.records, tile=None, stride=64)
+    for name in ("gray", "sparse", "depth", "focal_px"):
+        assert torch.equal(items[0][name], items[1][name])
+
+
 def test_a_field_cut_drops_the_returns_past_a_straight_line_and_keeps_the_truth(tmp_path):
     sparse = np.zeros((64, 80), np.float32)
     sparse[8:56:4, 10:70:4] = 50.0  # a grid of returns over rows 8-52, columns 10-66

@@ -31,6 +31,7 @@ from sdcnet.dataset_format import SampleStore
 from sdcnet.pipeline import (
     WORK_PIXELS,
     Region,
+    in_top_bits,
     nearest_resampled,
     region_of_interest,
     resample_image,
@@ -156,10 +157,11 @@ class TileDataset(Dataset):
         if self.augment:
             budget = round(budget * rng.uniform(*BUDGET_JITTER))
         fx = float(sample.meta["intrinsics"]["fx"])
+        frame_gray = in_top_bits(sample.gray)  # as the service reads a 12-bit camera's frame
         region = None
         if self.whole_target_share and rng.random() < self.whole_target_share:
-            region = holding_target(region_of_interest(sample.gray, sample.sparse), sample.depth)
-        inputs = working_inputs(sample.gray, sample.sparse, fx, self.stride, budget, region)
+            region = holding_target(region_of_interest(frame_gray, sample.sparse), sample.depth)
+        inputs = working_inputs(frame_gray, sample.sparse, fx, self.stride, budget, region)
         rows, cols = inputs.grid.region.slices
         depth = resample_truth(sample.depth[rows, cols], inputs.grid.shape)
         gray, sparse = inputs.gray, inputs.sparse
