@@ -35,6 +35,7 @@ NEEDS_TRAINING = {
     "test_training.py",
     "test_worlds.py",  # the generator's worlds
     "test_evaluation.py",  # the classical fill, stored answers, the robustness suite
+    "test_factors.py",  # sdc-eval factors on frames the generator renders
     "test_generalisation.py",  # the shipped model on frames the generator renders
     "test_lidar.py",
     "test_backgrounds.py",
