@@ -8,13 +8,7 @@ from sdcnet.camera import PAPER_CAMERA
 from sdcnet.dataset_format import SampleStore, write_sample
 from sdcnet.pipeline import Region
 from sdcnet.training.checkpoint import load_checkpoint, save_checkpoint, transplant_weights
-from sdcnet.training.dataset import (
-    FEW_RETURNS,
-    TileDataset,
-    cut_returns,
-    few_returns,
-    holding_target,
-)
+from sdcnet.training.dataset import TileDataset, cut_returns, holding_target
 from sdcnet.training.losses import (
     depth_gradient_loss,
     foreground_depth_loss,
@@ -490,31 +484,3 @@ def test_a_field_cut_drops_the_returns_past_a_straight_line_and_keeps_the_truth(
     assert 0 < (cut["sparse"] > 0).sum() < (plain["sparse"] > 0).sum()
     with pytest.raises(ValueError, match="field_cut_share"):
         TileDataset(store, store.records, stride=64, field_cut_share=-0.1)
-
-
-def test_a_few_returns_item_keeps_a_handful_of_neighbouring_returns_and_the_truth(tmp_path):
-    sparse = np.zeros((64, 80), np.float32)
-    sparse[8:56:4, 10:70:4] = 50.0  # 12 x 15 returns, 4 px apart
-    for seed in range(12):
-        kept = few_returns(sparse, np.random.default_rng(seed))
-        rows, cols = np.nonzero(kept)
-        assert FEW_RETURNS[0] <= rows.size <= FEW_RETURNS[1]
-        assert np.all(kept[rows, cols] == 50.0)
-        # the returns nearest one of them: none left out is nearer to it than one kept
-        lost_rows, lost_cols = np.nonzero((sparse > 0) & (kept == 0))
-        assert any(
-            np.hypot(rows - r, cols - c).max() <= np.hypot(lost_rows - r, lost_cols - c).min()
-            for r, c in zip(rows, cols, strict=True)
-        )
-    assert np.array_equal(few_returns(kept, np.random.default_rng(0))[kept == 0], kept[kept == 0])
-    root = write_dataset(tmp_path / "data", {"train": 1}, size=256)
-    store = SampleStore(root)
-    sample = store.load(store.records[0])
-    sample.meta["intrinsics"] = PAPER_CAMERA.intrinsics().scaled(256, 256).as_dict()
-    write_sample(root / store.records[0]["file"], sample)
-    plain = TileDataset(store, store.records, tile=None, stride=64)[0]
-    few = TileDataset(store, store.records, tile=None, stride=64, few_returns_share=1.0)[0]
-    assert 0 < (few["sparse"] > 0).sum() <= FEW_RETURNS[1] < (plain["sparse"] > 0).sum()
-    assert (few["depth"] > 0).sum() > 0  # the truth of the crop around them, kept
-    with pytest.raises(ValueError, match="few_returns_share"):
-        TileDataset(store, store.records, stride=64, few_returns_share=2.0)

@@ -19,16 +19,9 @@ the spacecraft, which the generator's frames show too seldom for the network to 
 stopped at the field's edge even inside crops holding the whole target). Tried once, a share
 of 0.3 from the eighth model, and not shipped: flash, docking and `any` +0.2-0.4 points, the
 Earth, Sun-Moon and narrow-far frames -0.9 to -1.4 (docs/development.md, "Measurements").
-
-A share of items (``few_returns_share``) keeps only a handful of the frame's returns, those
-nearest one drawn at random (``few_returns``), before the crop is made, the truth kept: on
-frames of any camera and LIDAR a third of the mask's deficit lies on frames of 1-30 returns on
-the spacecraft, whose masks hold the part the returns lie on while the image shows the rest.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import torch
@@ -123,25 +116,6 @@ def cut_returns(sparse: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-#: How many returns a few-returns item keeps (log-uniform within these).
-FEW_RETURNS = (1, 30)
-
-
-def few_returns(sparse: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``sparse`` (H, W metres, 0 = none) with only the k returns nearest one drawn at random,
-    k log-uniform within ``FEW_RETURNS``; unchanged when it holds k returns or fewer."""
-    rows, cols = np.nonzero(sparse > 0)
-    k = round(math.exp(rng.uniform(*(math.log(n) for n in FEW_RETURNS))))
-    if rows.size <= k:
-        return sparse
-    centre = int(rng.integers(rows.size))
-    distance = (rows - rows[centre]) ** 2 + (cols - cols[centre]) ** 2
-    kept = np.argpartition(distance, k - 1)[:k]
-    out = np.zeros_like(sparse)
-    out[rows[kept], cols[kept]] = sparse[rows[kept], cols[kept]]
-    return out
-
-
 class TileDataset(Dataset):
     """Items: dict of float32 tensors gray (1, T, T) in [0, 1], sparse and depth (1, T, T) in m,
     focal_px (1, 1, 1): the focal length in the tile's pixels.
@@ -160,20 +134,17 @@ class TileDataset(Dataset):
         augment: bool = False,
         whole_target_share: float = 0.0,
         field_cut_share: float = 0.0,
-        few_returns_share: float = 0.0,
         seed: int = 0,
     ):
         for name, share in (
             ("whole_target_share", whole_target_share),
             ("field_cut_share", field_cut_share),
-            ("few_returns_share", few_returns_share),
         ):
             if not 0.0 <= share <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {share}")
         self.store, self.records = store, records
         self.tile, self.augment, self.seed, self.stride = tile, augment, seed, stride
         self.whole_target_share, self.field_cut_share = whole_target_share, field_cut_share
-        self.few_returns_share = few_returns_share
         self.epoch = 0  # set by the trainer: new windows and jitter every epoch, reproducibly
 
     def __len__(self) -> int:
@@ -187,13 +158,10 @@ class TileDataset(Dataset):
             budget = round(budget * rng.uniform(*BUDGET_JITTER))
         fx = float(sample.meta["intrinsics"]["fx"])
         frame_gray = in_top_bits(sample.gray)  # as the service reads a 12-bit camera's frame
-        frame_sparse = sample.sparse
-        if self.few_returns_share and rng.random() < self.few_returns_share:
-            frame_sparse = few_returns(frame_sparse, rng)  # the crop follows them, as in service
         region = None
         if self.whole_target_share and rng.random() < self.whole_target_share:
-            region = holding_target(region_of_interest(frame_gray, frame_sparse), sample.depth)
-        inputs = working_inputs(frame_gray, frame_sparse, fx, self.stride, budget, region)
+            region = holding_target(region_of_interest(frame_gray, sample.sparse), sample.depth)
+        inputs = working_inputs(frame_gray, sample.sparse, fx, self.stride, budget, region)
         rows, cols = inputs.grid.region.slices
         depth = resample_truth(sample.depth[rows, cols], inputs.grid.shape)
         gray, sparse = inputs.gray, inputs.sparse

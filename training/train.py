@@ -164,7 +164,6 @@ class Trainer:
             augment=True,
             whole_target_share=config.whole_target_share,
             field_cut_share=config.field_cut_share,
-            few_returns_share=config.few_returns_share,
             seed=config.seed,
             stride=self.model.config.stride,
         )

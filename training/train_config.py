@@ -68,12 +68,6 @@ class TrainConfig:
         "them, the truth kept: a LIDAR field that ends across the spacecraft, where the mask "
         "must go on without returns",
     )
-    few_returns_share: float = setting(
-        0.0,
-        "share of training items that keep only a handful of their returns (1-30, those nearest "
-        "one drawn at random), the truth kept: a LIDAR that caught one panel or a boom's end, "
-        "where the image must show the mask the rest",
-    )
     samples_per_epoch: int | None = setting(
         None,
         "training frames drawn per epoch (unset, or more than the train split holds: the whole "
