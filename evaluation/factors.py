@@ -107,6 +107,18 @@ def iou(mask: np.ndarray, truth: np.ndarray) -> float:
     return np.count_nonzero(mask & truth) / union if union else 1.0
 
 
+def frame_factors(sample: Sample) -> dict[str, str]:
+    """The frame's bin of every factor; a ``ValueError`` naming what its metadata lacks
+    (frames of another generator, or of sdc-data before it recorded every factor)."""
+    try:
+        return {name: fn(sample) for name, fn in FACTORS.items()}
+    except KeyError as missing:
+        raise ValueError(
+            f"frame {sample.meta.get('id')} records no {missing} in its metadata: "
+            "`sdc-eval factors` needs frames of `sdc-data generate`, which records every factor"
+        ) from None
+
+
 def score_frames(
     methods: dict[str, Method], store: SampleStore, records: list[dict], progress: bool = True
 ) -> list[FrameFactors]:
@@ -114,7 +126,7 @@ def score_frames(
     frames = []
     for record in tqdm(records, desc="factors", unit="img", disable=not progress, leave=False):
         sample = store.load(record)
-        factors = {name: fn(sample) for name, fn in FACTORS.items()}
+        factors = frame_factors(sample)
         scores = {name: iou(method(sample).mask, sample.mask) for name, method in methods.items()}
         frames.append(FrameFactors(sample.meta["id"], factors, scores))
     return frames

@@ -9,6 +9,7 @@ from sdcnet.evaluation.cli import main as eval_main
 from sdcnet.evaluation.factors import FACTORS, FrameFactors, bin_order, binned, factor_rows, iou
 from sdcnet.evaluation.scoring import classical
 from sdcnet.training.data.cli import main as data_main
+from tests.support.frames import write_dataset
 
 
 @pytest.mark.parametrize(
@@ -63,3 +64,9 @@ def test_rendered_frames_are_grouped_by_what_their_metadata_records(tmp_path):
     table = (out / "factors.md").read_text()
     assert all(f"| {factor} |" in table for factor in FACTORS)
     assert (out / "factors.png").stat().st_size > 10_000
+
+
+def test_frames_that_record_no_factors_are_refused_with_what_they_lack(tmp_path, capsys):
+    data = write_dataset(tmp_path / "plain", {"test": 1})
+    assert eval_main(["factors", "--floor", "--data", str(data), "--out", str(tmp_path)]) == 2
+    assert "records no 'background' in its metadata" in capsys.readouterr().err
