@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from sdcnet.dataset_format import Sample, SampleStore
 from sdcnet.evaluation.scoring import Method
+from sdcnet.metrics import mask_iou
 
 #: A frame's value of one factor, as the label of its bin.
 FactorFn = Callable[[Sample], str]
@@ -73,7 +74,7 @@ def _offset(sample: Sample) -> str:
 FACTORS: dict[str, FactorFn] = {
     "background": lambda s: s.meta["background"]["kind"],
     "LIDAR": lambda s: s.meta["lidar"]["kind"],
-    "LIDAR's offset from the camera": lambda s: _offset(s),
+    "LIDAR's offset from the camera": _offset,
     "returns on the spacecraft": lambda s: binned(_returns_on_target(s), (1, 30, 300, 3000)),
     "spacecraft's pixels": lambda s: binned(
         int(np.count_nonzero(s.mask)), (2_000, 20_000, 100_000, 400_000)
@@ -101,12 +102,6 @@ class FrameFactors:
     iou: dict[str, float]
 
 
-def iou(mask: np.ndarray, truth: np.ndarray) -> float:
-    """Intersection over union of two boolean masks (1 when both are empty)."""
-    union = np.count_nonzero(mask | truth)
-    return np.count_nonzero(mask & truth) / union if union else 1.0
-
-
 def frame_factors(sample: Sample) -> dict[str, str]:
     """The frame's bin of every factor; a ``ValueError`` naming what its metadata lacks
     (frames of another generator, or of sdc-data before it recorded every factor)."""
@@ -127,7 +122,7 @@ def score_frames(
     for record in tqdm(records, desc="factors", unit="img", disable=not progress, leave=False):
         sample = store.load(record)
         factors = frame_factors(sample)
-        scores = {name: iou(method(sample).mask, sample.mask) for name, method in methods.items()}
+        scores = {n: mask_iou(method(sample).mask, sample.mask) for n, method in methods.items()}
         frames.append(FrameFactors(sample.meta["id"], factors, scores))
     return frames
 

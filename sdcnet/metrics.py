@@ -24,17 +24,23 @@ NAMES = ("IOU", "IOI", "MAEI", "MATE", "RMSEI", "RMSTE")
 MASK_NAMES = ("IOU", "IOI")  # the metrics of the foreground mask alone
 
 
+def mask_iou(pred_mask: np.ndarray, true_mask: np.ndarray) -> float:
+    """Intersection over union of two boolean masks (1 when both are empty)."""
+    union = np.count_nonzero(pred_mask | true_mask)
+    return np.count_nonzero(pred_mask & true_mask) / union if union else 1.0
+
+
 def frame_metrics(
     pred_depth: np.ndarray, pred_mask: np.ndarray, gt_depth: np.ndarray, alpha: float = ALPHA_M
 ) -> dict[str, float]:
     """The six metrics of one image; depths in metres, masks boolean. NaN = undefined."""
     A = gt_depth > 0
     P = pred_mask.astype(bool)
-    inter, union = A & P, A | P
+    inter = A & P
     n_inter, n_a, n_p = int(inter.sum()), int(A.sum()), int(P.sum())
     err = np.abs(pred_depth.astype(np.float64) - gt_depth.astype(np.float64))
     out = {
-        "IOU": n_inter / union.sum() if union.any() else 1.0,
+        "IOU": mask_iou(P, A),
         "IOI": n_inter / n_a if n_a else np.nan,
         "MAEI": err[inter].mean() if n_inter else np.nan,
         "RMSEI": np.sqrt(np.mean(err[inter] ** 2)) if n_inter else np.nan,

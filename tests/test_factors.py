@@ -6,8 +6,9 @@ import pytest
 
 from sdcnet.dataset_format import SampleStore
 from sdcnet.evaluation.cli import main as eval_main
-from sdcnet.evaluation.factors import FACTORS, FrameFactors, bin_order, binned, factor_rows, iou
+from sdcnet.evaluation.factors import FACTORS, FrameFactors, bin_order, binned, factor_rows
 from sdcnet.evaluation.scoring import classical
+from sdcnet.metrics import mask_iou
 from sdcnet.training.data.cli import main as data_main
 from tests.support.frames import write_dataset
 
@@ -58,7 +59,7 @@ def test_rendered_frames_are_grouped_by_what_their_metadata_records(tmp_path):
         assert frame["factors"]["background"] == sample.meta["background"]["kind"]
         assert frame["factors"]["LIDAR"] == sample.meta["lidar"]["kind"]
         fill_mask = classical(sample).mask
-        assert frame["iou"]["classical fill"] == pytest.approx(iou(fill_mask, sample.mask))
+        assert frame["iou"]["classical fill"] == pytest.approx(mask_iou(fill_mask, sample.mask))
     for factor in FACTORS:
         assert sum(row["frames"] for row in report["factors"][factor]) == len(samples)
     table = (out / "factors.md").read_text()
