@@ -62,15 +62,18 @@ def _run_line(run: dict, number: dict[str, int]) -> str:
 
 def _weights_of(state: dict, number: dict[str, int]) -> str:
     """Whose weights a checkpoint holds, by the card's run numbers (``number``, by ``_key``):
-    ``run 3``, or for an average ``the mean of runs 3, 4, 5`` (an averaged member in
-    brackets)."""
+    ``run 3``, for an average ``the mean of runs 3, 4, 5``, and for an average of averages
+    ``the mean of (the mean of runs 3, 4, 5) and run 6``."""
     if "averaged" not in state:
         return f"run {number[_key(state)]}"
-    members = (
-        f"({_weights_of(m, number)})" if "averaged" in m else str(number[_key(m)])
-        for m in state["averaged"]
-    )
-    return "the mean of runs " + ", ".join(members)
+    members = state["averaged"]
+    if not any("averaged" in m for m in members):
+        return "the mean of runs " + ", ".join(str(number[_key(m)]) for m in members)
+    named = [
+        f"({_weights_of(m, number)})" if "averaged" in m else _weights_of(m, number)
+        for m in members
+    ]
+    return "the mean of " + ", ".join(named[:-1]) + " and " + named[-1]
 
 
 def _average_line(state: dict, number: dict[str, int]) -> list[str]:

@@ -207,6 +207,11 @@ def test_average_writes_the_mean_of_fine_tuned_weights_and_the_card_lists_their_
     tuned["parent"] = {k: state[k] for k in PROVENANCE if k in state}
     text = model_card(tuned, mean, [], "tuned")
     assert "3 run(s)" in text and "from the mean of runs 1, 2's weights" in text
+    # an average of that average and the run tuned from it
+    tuned = {**tuned, "file": "tuned.pt"}
+    nested = {"averaged": [{k: state[k] for k in PROVENANCE if k in state}, tuned]}
+    text = model_card(nested, mean, [], "nested")
+    assert "The weights are the mean of (the mean of runs 1, 2) and run 3's" in text
     other = tmp_path / "baseline.pt"
     save_checkpoint(other, build_model("baseline"))
     refused = ["--out", str(tmp_path / "refused.pt")]
