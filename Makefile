@@ -99,7 +99,7 @@ docker-check: $(STAMP)
 ## rendered of 800 new models in 220 s (data/mixed-s7, seed 7: 2144 frames), at lr 3e-4 and
 ## 1e-4, each stopped by its 270 s slot after 8 of its 10 epochs (`sdc-train average`). The
 ## tenth (shipped) is the mean of the ninth and one fine-tune of its FSNet on 2 cores (8
-## epochs at lr 3e-4, 18 min) on 2058 frames of 800 new models (data/mixed-s10, seed 10;
+## epochs at lr 3e-4, 18 min) on 2058 frames of 686 new models (data/mixed-s10, seed 10;
 ## 10 min to render), its depth networks and sigma the seventh's.
 .PHONY: model
 PRESET ?= cpu
