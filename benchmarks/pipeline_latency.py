@@ -11,8 +11,12 @@ default), with malloc set as the service sets it
 (``sdcnet.allocator``), at the share of each frame's budget ``sdc-serve`` chooses on this CPU
 (``sdcnet.frame_budget.calibrate``, measured first) and, beside it, at the whole budget
 (``--shares``: at other shares of it too; with two or more, the line through their p95, the
-constants ``sdcnet.frame_budget`` holds). Per condition and over all frames: median,
-p95 and max in milliseconds, p95 / median, against the 100 ms a 10 Hz LIDAR leaves. With
+constants ``sdcnet.frame_budget`` holds). Each model is first warmed up as ``sdc-serve`` warms
+it at start-up (``sdcnet.service.inference.warm_up``, at its largest accepted frame), so that
+no frame pays for the process's first memory. Per condition and over all frames: median,
+p95 and max in milliseconds, p95 / median, against the 100 ms a 10 Hz LIDAR leaves; and the
+slowest frames with their milliseconds on every pass, which tell a frame that is slow from a
+machine that was. With
 ``--previous COMMIT``, the same frames through the previous shipped model and its own pipeline
 (``benchmarks/previous_model.py``, run after this one in the same command). Writes
 docs/benchmarks/pipeline_latency.md and .json.
@@ -22,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 import tempfile
@@ -44,6 +49,8 @@ from sdcnet.frame_budget import (
     frame_milliseconds,
 )
 from sdcnet.runtime.onnx import OnnxModel
+from sdcnet.service.inference import warm_up
+from sdcnet.service.settings import MAX_PIXELS
 
 BUDGET_MS = 100.0
 
@@ -52,16 +59,22 @@ BUDGET_MS = 100.0
 Runner = tuple[OnnxModel, int, float]
 
 
+#: Slowest frames of --onnx at the share served listed with their milliseconds on every pass.
+SLOWEST = 8
+
+
 def time_frames(
     runners: dict[str, Runner], store: SampleStore, repeats: int
-) -> dict[str, list[float]]:
-    """Milliseconds of each frame of ``store`` (each one ``repeats`` times) through the
-    pipeline, the back-projection and the points' normals, per runner, after a warm-up. The
-    runners take turns frame by frame, so that a machine that slows down or speeds up weighs on
-    each alike, and which of them goes first moves on with every frame: the first to complete
-    a frame can pay for memory the next ones find ready (a 2048 x 2048 frame's first sigma
-    paste-back took 15-34 ms, the same copy 0.8 ms on the next frame)."""
-    samples = [store.load(r) for r in store.records]
+) -> dict[str, list[list[float]]]:
+    """Milliseconds of each frame of ``store`` on each of ``repeats`` passes (one list a frame)
+    through the pipeline, the back-projection and the points' normals, per runner. The runners
+    take turns frame by frame, so that a machine that slows down or speeds up weighs on each
+    alike, and which of them goes first moves on with every frame: the first to complete a
+    frame can pay for memory the next ones find ready (a 2048 x 2048 frame's first sigma
+    paste-back took 15-34 ms, the same copy 0.8 ms on the next frame). Each frame is read
+    just before its turn, as the service decodes a request's frame: with a whole condition
+    read at once (2 GB of 2048 x 2048 frames), its first frame's maps landed on memory never
+    touched and took 260-380 ms, 77-91 on the next pass."""
 
     def run(runner: Runner, sample) -> None:
         model, work_pixels, share = runner
@@ -70,18 +83,50 @@ def time_frames(
             model.run, sample.gray, sample.sparse, K, model.stride, work_pixels, share
         )
 
-    for runner in runners.values():
-        for sample in samples[:2]:
-            run(runner, sample)
-    times: dict[str, list[float]] = {name: [] for name in runners}
+    times = {name: [[] for _ in store.records] for name in runners}
     names = list(runners)
     for _ in range(repeats):
-        for i, sample in enumerate(samples):
+        for i, record in enumerate(store.records):
+            sample = store.load(record)
             for name in names[i % len(names) :] + names[: i % len(names)]:
                 start = time.perf_counter()
                 run(runners[name], sample)
-                times[name].append((time.perf_counter() - start) * 1e3)
+                times[name][i].append((time.perf_counter() - start) * 1e3)
     return times
+
+
+def slowest_frames(
+    conditions: list[Path], timed: dict[str, dict[str, list[list[float]]]], name: str
+) -> list[dict]:
+    """The ``SLOWEST`` frames of runner ``name`` by their slowest pass: condition, sample id,
+    size (pixels), LIDAR returns and the milliseconds of every pass."""
+    frames = []
+    for condition in conditions:
+        store = SampleStore(condition)
+        for record, passes in zip(store.records, timed[condition.name][name], strict=True):
+            intrinsics = record["intrinsics"]
+            frames.append(
+                {
+                    "condition": condition.name,
+                    "id": record["id"],
+                    "size": f"{intrinsics['width']} x {intrinsics['height']}",
+                    "returns": record["returns"],
+                    "ms": [round(t, 1) for t in passes],
+                }
+            )
+    return sorted(frames, key=lambda f: -max(f["ms"]))[:SLOWEST]
+
+
+def slowest_rows(frames: list[dict]) -> str:
+    """The slowest frames as a markdown table."""
+    lines = [
+        "| condition | frame | size | returns | ms on each pass |",
+        "|---|---|---|---|---|",
+    ]
+    for f in frames:
+        passes = " / ".join(f"{t:.1f}" for t in f["ms"])
+        lines.append(f"| {f['condition']} | {f['id']} | {f['size']} | {f['returns']} | {passes} |")
+    return "\n".join(lines)
 
 
 def previous_times(commit: str, data: Path, threads: int) -> dict[str, list[float]]:
@@ -181,6 +226,8 @@ def main(argv: list[str] | None = None) -> int:
         OnnxModel(path, provider="cpu", threads=args.threads, spin_wait=False)
         for path in [args.onnx, *args.beside]
     )
+    for runtime in (model, *beside):
+        warm_up(runtime, math.isqrt(MAX_PIXELS))  # as sdc-serve does at start-up
     own = model.info.work_pixels
     budget = calibrate(model.run, model.stride, own, args.deadline_ms)
     runners: dict[str, Runner] = {"this model": (model, own, budget.frame_share)}
@@ -193,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     reference_ms = frame_milliseconds(model.run, model.stride, own)
     results = {}
     for name in runners:
-        times = {c: ts[name] for c, ts in timed.items()}
+        times = {c: [t for passes in ts[name] for t in passes] for c, ts in timed.items()}
         results[name] = {c: stats(t) for c, t in times.items()}
         results[name]["all"] = stats([t for ts in times.values() for t in ts])
     if args.previous:
@@ -210,6 +257,9 @@ def main(argv: list[str] | None = None) -> int:
     fit = suite_line(results, args.shares)
     calibration_note = budget_note(budget, reference_ms, fit)
     print(calibration_note)
+    slowest = slowest_frames(conditions, timed, "this model")
+    slowest_table = slowest_rows(slowest)
+    print(slowest_table)
     command = " ".join(
         [
             "python -m benchmarks.pipeline_latency",
@@ -245,9 +295,15 @@ Regenerate: `{command}`.
 | condition | model | frames | median ms | p95 ms | max ms | p95 / median | {BUDGET_MS:.0f} ms |
 |---|---|---|---|---|---|---|---|
 {chr(10).join(rows)}
+
+**The slowest frames** of this model at the share served, by their slowest pass (the passes
+alike: the frame is slow; one pass alone: the machine was):
+
+{slowest_table}
 """
     print(write_markdown("pipeline_latency", "The cost of every frame, per condition", body))
     results["frame budget"] = {**budget.describe(), "reference_ms_after": reference_ms}
+    results["slowest frames"] = slowest
     if fit:
         results["frame budget"]["suite_p95_line_ms"] = fit
     (DOCS / "pipeline_latency.json").write_text(json.dumps(results, indent=1))

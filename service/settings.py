@@ -15,6 +15,9 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from sdcnet.pointcloud import MAX_POINTS
 from sdcnet.runtime.registry import DEFAULT_RUNTIME, RUNTIMES
 
+#: Largest image accepted by default (width x height, pixels).
+MAX_PIXELS = 2048 * 2048
+
 
 def shipped_model_path() -> Path:
     """The model installed with the package: ``sdcnet/models/sdcnet.onnx``."""
@@ -113,7 +116,7 @@ class Settings(BaseSettings):
         default=1, ge=0, description="Retry-After seconds advertised on 503 answers"
     )
     max_pixels: int = Field(
-        default=2048 * 2048,
+        default=MAX_PIXELS,
         ge=1,
         description="largest image (width x height) accepted: with max_upload_bytes, what "
         "bounds a request's memory (docs/service.md, the memory budget)",
