@@ -9,9 +9,10 @@ What the service does between decoding and encoding a frame, on the robustness s
 onnxruntime, paste back, back-project the cloud (at most ``MAX_POINTS``, as the service's
 default), with malloc set as the service sets it
 (``sdcnet.allocator``), at the share of each frame's budget ``sdc-serve`` chooses on this CPU
-(``sdcnet.frame_budget.calibrate``, measured first) and, beside it, at the whole budget
-(``--shares``: at other shares of it too; with two or more, the line through their p95, the
-constants ``sdcnet.frame_budget`` holds). Each model is first warmed up as ``sdc-serve`` warms
+(``sdcnet.frame_budget.calibrate``, measured first, then re-read from the frames as they are
+served: ``ServedBudget``), beside it at the share chosen first and held, and at the whole
+budget (``--shares``: at other shares of it too; with two or more, the line through their
+p95, the constants ``sdcnet.frame_budget`` holds). Each model is first warmed up as ``sdc-serve`` warms
 it at start-up (``sdcnet.service.inference.warm_up``, at its largest accepted frame), so that
 no frame pays for the process's first memory. Per condition and over all frames: median,
 p95 and max in milliseconds, p95 / median, against the 100 ms a 10 Hz LIDAR leaves; and the
@@ -31,6 +32,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,9 +45,12 @@ from sdcnet.frame_budget import (
     DEADLINE_SHARE,
     REFERENCE_MS,
     SUITE_P95_MS,
+    WINDOW_FRAMES,
     FrameBudget,
+    ServedBudget,
     answer_in_process,
     calibrate,
+    fixed,
     frame_milliseconds,
 )
 from sdcnet.runtime.onnx import OnnxModel
@@ -55,8 +60,9 @@ from sdcnet.service.settings import MAX_PIXELS
 BUDGET_MS = 100.0
 
 
-#: A model, the working pixels it is run at and the share of a frame's budget.
-Runner = tuple[OnnxModel, int, float]
+#: A model, the working pixels it is run at and the budget whose share frames get (one that
+#: never changes, or one re-read from the frames as ``sdc-serve`` re-reads it).
+Runner = tuple[OnnxModel, int, ServedBudget]
 
 
 #: Slowest frames of --onnx at the share served listed with their milliseconds on every pass.
@@ -65,9 +71,10 @@ SLOWEST = 8
 
 def time_frames(
     runners: dict[str, Runner], store: SampleStore, repeats: int
-) -> dict[str, list[list[float]]]:
-    """Milliseconds of each frame of ``store`` on each of ``repeats`` passes (one list a frame)
-    through the pipeline, the back-projection and the points' normals, per runner. The runners
+) -> dict[str, list[list[tuple[float, float]]]]:
+    """(milliseconds, share of its budget) of each frame of ``store`` on each of ``repeats``
+    passes (one list a frame) through the pipeline, the back-projection and the points'
+    normals, per runner; each frame's milliseconds go to its runner's budget. The runners
     take turns frame by frame, so that a machine that slows down or speeds up weighs on each
     alike, and which of them goes first moves on with every frame: the first to complete a
     frame can pay for memory the next ones find ready (a 2048 x 2048 frame's first sigma
@@ -76,12 +83,17 @@ def time_frames(
     read at once (2 GB of 2048 x 2048 frames), its first frame's maps landed on memory never
     touched and took 260-380 ms, 77-91 on the next pass."""
 
-    def run(runner: Runner, sample) -> None:
-        model, work_pixels, share = runner
+    def run(runner: Runner, sample) -> tuple[float, float]:
+        model, work_pixels, budget = runner
         K = Intrinsics(**sample.meta["intrinsics"])
+        share = budget.budget.frame_share
+        start = time.perf_counter()
         answer_in_process(
             model.run, sample.gray, sample.sparse, K, model.stride, work_pixels, share
         )
+        milliseconds = (time.perf_counter() - start) * 1e3
+        budget.observe(milliseconds, share)
+        return milliseconds, share
 
     times = {name: [[] for _ in store.records] for name in runners}
     names = list(runners)
@@ -89,14 +101,12 @@ def time_frames(
         for i, record in enumerate(store.records):
             sample = store.load(record)
             for name in names[i % len(names) :] + names[: i % len(names)]:
-                start = time.perf_counter()
-                run(runners[name], sample)
-                times[name][i].append((time.perf_counter() - start) * 1e3)
+                times[name][i].append(run(runners[name], sample))
     return times
 
 
 def slowest_frames(
-    conditions: list[Path], timed: dict[str, dict[str, list[list[float]]]], name: str
+    conditions: list[Path], timed: dict[str, dict[str, list[list[tuple[float, float]]]]], name: str
 ) -> list[dict]:
     """The ``SLOWEST`` frames of runner ``name`` by their slowest pass: condition, sample id,
     size (pixels), LIDAR returns and the milliseconds of every pass."""
@@ -111,7 +121,7 @@ def slowest_frames(
                     "id": record["id"],
                     "size": f"{intrinsics['width']} x {intrinsics['height']}",
                     "returns": record["returns"],
-                    "ms": [round(t, 1) for t in passes],
+                    "ms": [round(t, 1) for t, _ in passes],
                 }
             )
     return sorted(frames, key=lambda f: -max(f["ms"]))[:SLOWEST]
@@ -148,17 +158,28 @@ def previous_times(commit: str, data: Path, threads: int) -> dict[str, list[floa
         }
 
 
-def stats(ms: list[float]) -> dict[str, float]:
+def stats(ms: list[float], shares: list[float] | None = None) -> dict[str, float]:
+    """Median, p95, max and p95 / median of ``ms``, their count, and the frames' mean share
+    of their budget (None where not known: the previous model)."""
     t = np.array(ms)
     p50, p95 = float(np.percentile(t, 50)), float(np.percentile(t, 95))
-    return {"p50": p50, "p95": p95, "max": float(t.max()), "p95_over_p50": p95 / p50, "n": len(t)}
+    share = float(np.mean(shares)) if shares else None
+    return {
+        "p50": p50,
+        "p95": p95,
+        "max": float(t.max()),
+        "p95_over_p50": p95 / p50,
+        "n": len(t),
+        "share": share,
+    }
 
 
 def row(name: str, condition: str, s: dict[str, float]) -> str:
     verdict = "within" if s["p95"] <= BUDGET_MS else "over"
+    share = "" if s["share"] is None else f"{s['share']:.2f}"
     return (
-        f"| {condition} | {name} | {s['n']} | {s['p50']:.1f} | {s['p95']:.1f} | {s['max']:.1f} "
-        f"| {s['p95_over_p50']:.2f} | {verdict} |"
+        f"| {condition} | {name} | {s['n']} | {share} | {s['p50']:.1f} | {s['p95']:.1f} "
+        f"| {s['max']:.1f} | {s['p95_over_p50']:.2f} | {verdict} |"
     )
 
 
@@ -172,17 +193,24 @@ def suite_line(results: dict, shares: list[float]) -> tuple[float, float] | None
     return round(float(a), 1), round(float(b), 1)
 
 
-def budget_note(budget: FrameBudget, reference_ms: float, fit: tuple[float, float] | None) -> str:
+def budget_note(
+    budget: FrameBudget, served: FrameBudget, reference_ms: float, fit: tuple[float, float] | None
+) -> str:
     """What the calibration chose here (``sdcnet.frame_budget``), as sdc-serve does at start-up,
-    and the constants this run measured."""
+    where the frames' re-reading left it, and the constants this run measured."""
     lines = [
-        f"**This model's frames** get {budget.frame_share:.2f} of their budget (at most "
+        f"**This model's frames** start at {budget.frame_share:.2f} of their budget (at most "
         f"{budget.work_pixels} working pixels, fewer where a frame's own work is large): "
         f"`sdcnet.frame_budget.calibrate` on this CPU, as "
         f"`sdc-serve` does at start-up, for a p95 within {DEADLINE_SHARE:g} of "
         f"{budget.deadline_ms:g} ms. The reference frame took {budget.reference_ms:.1f} ms at "
         f"the whole budget then, {reference_ms:.1f} ms after the run (the constants' CPU: "
-        f"{REFERENCE_MS:g} ms); expected p95 {budget.expected_p95_ms:.1f} ms."
+        f"{REFERENCE_MS:g} ms); expected p95 {budget.expected_p95_ms:.1f} ms. "
+        f"`this model` is served as `sdc-serve` serves it, the share re-read from the "
+        f"latest {WINDOW_FRAMES} frames every {WINDOW_FRAMES // 4} "
+        f"(`sdcnet.frame_budget.ServedBudget`; its frames' mean share per row): after "
+        f"{served.served_frames} frames, {served.frame_share:.2f} (the latest frames' p95 "
+        f"{served.served_p95_ms:.1f} ms); `this model, start-up share` holds the first."
     ]
     if fit:
         lines.append(
@@ -230,19 +258,24 @@ def main(argv: list[str] | None = None) -> int:
         warm_up(runtime, math.isqrt(MAX_PIXELS))  # as sdc-serve does at start-up
     own = model.info.work_pixels
     budget = calibrate(model.run, model.stride, own, args.deadline_ms)
-    runners: dict[str, Runner] = {"this model": (model, own, budget.frame_share)}
+    runners: dict[str, Runner] = {
+        "this model": (model, own, ServedBudget(budget)),
+        "this model, start-up share": (model, own, ServedBudget(budget, window=0)),
+    }
     for share in args.shares:
-        runners[f"this model at {share:g} of its budget"] = (model, own, share)
+        at_share = ServedBudget(replace(fixed(own, own), frame_share=share), window=0)
+        runners[f"this model at {share:g} of its budget"] = (model, own, at_share)
     for path, other in zip(args.beside, beside, strict=True):
-        runners[path.stem] = (other, other.info.work_pixels, 1.0)
+        whole = fixed(other.info.work_pixels, other.info.work_pixels)
+        runners[path.stem] = (other, other.info.work_pixels, ServedBudget(whole))
     conditions = sorted(d for d in args.data.iterdir() if (d / "manifest.jsonl").exists())
     timed = {c.name: time_frames(runners, SampleStore(c), args.repeats) for c in conditions}
     reference_ms = frame_milliseconds(model.run, model.stride, own)
     results = {}
     for name in runners:
-        times = {c: [t for passes in ts[name] for t in passes] for c, ts in timed.items()}
-        results[name] = {c: stats(t) for c, t in times.items()}
-        results[name]["all"] = stats([t for ts in times.values() for t in ts])
+        frames = {c: [f for passes in ts[name] for f in passes] for c, ts in timed.items()}
+        results[name] = {c: stats(*zip(*f, strict=True)) for c, f in frames.items()}
+        results[name]["all"] = stats(*zip(*(f for fs in frames.values() for f in fs), strict=True))
     if args.previous:
         previous = previous_times(args.previous, args.data, args.threads)
         results["previous model"] = {c: stats(t) for c, t in previous.items()}
@@ -255,7 +288,8 @@ def main(argv: list[str] | None = None) -> int:
     ]
     print("\n".join(rows))
     fit = suite_line(results, args.shares)
-    calibration_note = budget_note(budget, reference_ms, fit)
+    served = runners["this model"][2].budget
+    calibration_note = budget_note(budget, served, reference_ms, fit)
     print(calibration_note)
     slowest = slowest_frames(conditions, timed, "this model")
     slowest_table = slowest_rows(slowest)
@@ -292,8 +326,8 @@ Regenerate: `{command}`.
 
 {calibration_note}
 
-| condition | model | frames | median ms | p95 ms | max ms | p95 / median | {BUDGET_MS:.0f} ms |
-|---|---|---|---|---|---|---|---|
+| condition | model | frames | share | p50 ms | p95 ms | max ms | p95 / p50 | {BUDGET_MS:.0f} ms |
+|---|---|---|---|---|---|---|---|---|
 {chr(10).join(rows)}
 
 **The slowest frames** of this model at the share served, by their slowest pass (the passes
@@ -303,6 +337,7 @@ alike: the frame is slow; one pass alone: the machine was):
 """
     print(write_markdown("pipeline_latency", "The cost of every frame, per condition", body))
     results["frame budget"] = {**budget.describe(), "reference_ms_after": reference_ms}
+    results["frame budget served"] = served.describe()
     results["slowest frames"] = slowest
     if fit:
         results["frame budget"]["suite_p95_line_ms"] = fit

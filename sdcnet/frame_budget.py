@@ -20,13 +20,23 @@ crops and many points, the slowest, get fewer.
 - the share is the largest whose p95, so scaled, is within ``DEADLINE_SHARE`` of the
   deadline, at most 1 and at least ``MIN_SHARE``: a CPU slower than that misses the deadline,
   and ``FrameBudget.met`` says so.
+
+One reference frame at one moment is a rough reading: on an Intel Xeon whose reference frame
+took 87-92 ms, the suite's p95 frame at the share so chosen took 101 ms where 90 were expected
+(docs/development.md, "Measurements"), and a machine's speed changes with what else runs on
+it. So the served frames themselves re-read it (``ServedBudget``): every few frames, the p95
+of the latest frames' milliseconds, each scaled by the share it was served at, stands for the
+reference frame's (``implied_reference_ms``), and the share is chosen again from it; the share
+then holds the p95 of the frames this service is sent, whatever their mix.
 """
 
 from __future__ import annotations
 
 import statistics
+import threading
 import time
-from dataclasses import asdict, dataclass
+from collections import deque
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -55,6 +65,10 @@ REFERENCE_DEPTH_M = 20.0
 REFERENCE_FOCAL_PX = 1000.0
 #: Timed runs of the reference frame (their median counts), after one untimed run.
 REPEATS = 5
+#: Served frames whose milliseconds the share is re-read from, the latest (``ServedBudget``;
+#: ``sdc-serve --budget-window``): at 10 Hz, the last 6.4 s. It is re-read every quarter of
+#: them.
+WINDOW_FRAMES = 64
 
 
 @dataclass(frozen=True)
@@ -63,8 +77,11 @@ class FrameBudget:
     ``model_work_pixels`` unless an operator set fewer) and ``frame_share`` of a frame's budget
     (``sdcnet.pipeline.frame_work_pixels``); and how the share was chosen: the deadline
     (``deadline_ms``; 0 when none was set), the reference frame's milliseconds at the whole
-    budget on this CPU, the suite's p95 frame expected at that share (``expected_p95_ms``) and
-    whether it is within the deadline (None when nothing was measured)."""
+    budget on this CPU (timed at start-up, or implied by the served frames since), the suite's
+    p95 frame expected at that share (``expected_p95_ms``) and whether it is within the
+    deadline (None when nothing was measured); the frames served so far (``served_frames``)
+    and the p95 milliseconds of the latest ones the share was last re-read from
+    (``served_p95_ms``, None before the first re-reading)."""
 
     work_pixels: int
     model_work_pixels: int
@@ -73,6 +90,8 @@ class FrameBudget:
     reference_ms: float | None = None
     expected_p95_ms: float | None = None
     met: bool | None = None
+    served_frames: int = 0
+    served_p95_ms: float | None = None
 
     def describe(self) -> dict:
         """Plain values (JSON-ready)."""
@@ -156,12 +175,9 @@ def expected_p95_ms(reference_ms: float, share: float) -> float:
     return reference_ms / REFERENCE_MS * (a + b * share)
 
 
-def calibrate(
-    model_fn: ModelFn, stride: int, model_work_pixels: int, deadline_ms: float
-) -> FrameBudget:
-    """The budget that keeps this machine's p95 frame within ``deadline_ms``: the reference
-    frame timed at the whole budget (about 0.5 s on two cores), then ``share_within``."""
-    reference_ms = frame_milliseconds(model_fn, stride, model_work_pixels)
+def budget_at(reference_ms: float, model_work_pixels: int, deadline_ms: float) -> FrameBudget:
+    """The budget of a CPU that completes the reference frame in ``reference_ms``: the share
+    within the deadline (``share_within``) and the p95 expected at it."""
     share = share_within(reference_ms, deadline_ms)
     expected = expected_p95_ms(reference_ms, share)
     return FrameBudget(
@@ -173,3 +189,61 @@ def calibrate(
         expected_p95_ms=round(expected, 3),
         met=expected <= deadline_ms,
     )
+
+
+def calibrate(
+    model_fn: ModelFn, stride: int, model_work_pixels: int, deadline_ms: float
+) -> FrameBudget:
+    """The budget that keeps this machine's p95 frame within ``deadline_ms``: the reference
+    frame timed at the whole budget (about 0.5 s on two cores), then ``budget_at``."""
+    reference_ms = frame_milliseconds(model_fn, stride, model_work_pixels)
+    return budget_at(reference_ms, model_work_pixels, deadline_ms)
+
+
+def implied_reference_ms(ms: float, share: float) -> float:
+    """The reference frame's milliseconds on a CPU whose suite p95 frame takes ``ms`` at
+    ``share`` of the budget: ``expected_p95_ms`` the other way round."""
+    a, b = SUITE_P95_MS
+    return ms * REFERENCE_MS / (a + b * share)
+
+
+class ServedBudget:
+    """A calibrated budget (``calibrate``) re-read from the frames served with it: every
+    ``window // 4`` frames, the p95 of the latest ``window`` frames' in-process milliseconds,
+    each as the reference frame's it implies at the share it was served at
+    (``implied_reference_ms``), chooses the share again (``budget_at``). A budget not measured
+    (``fixed``: an operator's working pixels, or no deadline) and a ``window`` of 0 hold as
+    they are. Safe to call from the service's threads at once."""
+
+    def __init__(self, budget: FrameBudget, window: int = WINDOW_FRAMES):
+        if window < 0:
+            raise ValueError(f"window must be 0 (never re-read) or more frames, not {window}")
+        self._budget = budget
+        self._adapts = window > 0 and budget.reference_ms is not None and budget.deadline_ms > 0
+        self._every = max(1, window // 4)
+        self._latest: deque[tuple[float, float]] = deque(maxlen=max(window, 1))
+        self._lock = threading.Lock()
+
+    @property
+    def budget(self) -> FrameBudget:
+        """The budget frames get now."""
+        return self._budget
+
+    def observe(self, milliseconds: float, share: float) -> None:
+        """Count one served frame that took ``milliseconds`` in process at ``share`` of its
+        budget, and re-read the share when its turn comes."""
+        with self._lock:
+            budget = self._budget
+            served = budget.served_frames + 1
+            if not self._adapts:
+                self._budget = replace(budget, served_frames=served)
+                return
+            self._latest.append((milliseconds, implied_reference_ms(milliseconds, share)))
+            if served % self._every or len(self._latest) < self._every:
+                self._budget = replace(budget, served_frames=served)
+                return
+            served_ms, implied = np.array(self._latest).T
+            reference_ms = float(np.percentile(implied, 95))
+            chosen = budget_at(reference_ms, budget.model_work_pixels, budget.deadline_ms)
+            p95 = round(float(np.percentile(served_ms, 95)), 3)
+            self._budget = replace(chosen, served_frames=served, served_p95_ms=p95)

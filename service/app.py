@@ -142,10 +142,11 @@ def create_app(
                 "provider": loaded.provider,
                 "threads": str(loaded.threads),
                 "work_pixels": str(chosen.work_pixels),
-                "frame_share": f"{chosen.frame_share:g}",
             }
         )
-        app.state.engine = Engine(loaded, settings.max_points, chosen)
+        engine = Engine(loaded, settings.max_points, chosen, settings.budget_window)
+        service_metrics.frame_share.set_function(lambda: engine.frame_budget.frame_share)
+        app.state.engine = engine
         yield
         app.state.engine = None  # not ready while shutting down
 

@@ -35,6 +35,7 @@ FLAGS = [
     ("--provider", "provider", str),
     ("--threads", "threads", int),
     ("--frame-ms", "frame_ms", float),
+    ("--budget-window", "budget_window", int),
     ("--work-pixels", "work_pixels", int),
     ("--targets", "targets", Path),
     ("--camera", "camera", Path),

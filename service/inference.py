@@ -24,7 +24,14 @@ import numpy as np
 from sdcnet.camera import Intrinsics, IntrinsicsError, check_intrinsics
 from sdcnet.caveats import frame_caveats
 from sdcnet.compact import mask_window
-from sdcnet.frame_budget import FrameBudget, answer_in_process, calibrate, fixed
+from sdcnet.frame_budget import (
+    WINDOW_FRAMES,
+    FrameBudget,
+    ServedBudget,
+    answer_in_process,
+    calibrate,
+    fixed,
+)
 from sdcnet.normals import cloud_normals
 from sdcnet.pipeline import Completion, Region, complete
 from sdcnet.pointcloud import (
@@ -95,39 +102,49 @@ class Engine:
     """The model, loaded once, run one request at a time: the runtime already spreads one
     inference over all its intra-op threads, so running two at once only makes both slower;
     the working pixels a frame gets (``frame_budget``: ``sdcnet.frame_budget``, default the
-    model's own) and the most points a frame's cloud holds (``max_points``:
-    ``sdcnet.pointcloud``)."""
+    model's own; a calibrated one re-read from the frames served, the latest
+    ``budget_window``: ``ServedBudget``) and the most points a frame's cloud holds
+    (``max_points``: ``sdcnet.pointcloud``)."""
 
     def __init__(
         self,
         model: Runtime,
         max_points: int = MAX_POINTS,
         frame_budget: FrameBudget | None = None,
+        budget_window: int = WINDOW_FRAMES,
     ):
         self.model = model
         self.max_points = max_points
         own = model.info.work_pixels
-        self.frame_budget = frame_budget or fixed(own, own)
+        self.served_budget = ServedBudget(frame_budget or fixed(own, own), budget_window)
         self._lock = threading.Lock()
+
+    @property
+    def frame_budget(self) -> FrameBudget:
+        """The budget frames get now."""
+        return self.served_budget.budget
 
     def complete(
         self, gray: np.ndarray, sparse: np.ndarray, focal_px: float, timer: PhaseTimer
-    ) -> Completion:
-        """Complete a frame of a camera of focal length ``focal_px`` (pixels), on the model's
-        frame budget (``sdcnet.pipeline``)."""
+    ) -> tuple[Completion, float]:
+        """Complete a frame of a camera of focal length ``focal_px`` (pixels), on the frame
+        budget of the moment (``sdcnet.pipeline``): the completion, and the share of its
+        budget it got."""
         with timer("queue"):
             self._lock.acquire()
         try:
+            budget = self.frame_budget
             with timer("inference"):
-                return complete(
+                result = complete(
                     self.model.run,
                     gray,
                     sparse,
                     focal_px,
                     self.model.info.stride,
-                    self.frame_budget.work_pixels,
-                    frame_share=self.frame_budget.frame_share,
+                    budget.work_pixels,
+                    frame_share=budget.frame_share,
                 )
+            return result, budget.frame_share
         finally:
             self._lock.release()
 
@@ -261,10 +278,12 @@ def complete_frame(
     ``max_sigma``, else its ``sigma_quantile`` when given), then the optional outlier removal
     on those, and of those the pixels on every k-th row and column where they are more than
     the engine's ``max_points`` (``cloud_stride``). What every protocol answers from, and what
-    ``POST /pose`` registers."""
+    ``POST /pose`` registers. The frame's in-process milliseconds (the pipeline and the cloud)
+    go to the engine's budget, which the latest frames' re-read (``ServedBudget``)."""
     height, width = frame.gray.shape
     K = request_intrinsics(engine.model.info.intrinsics, width, height, frame)
-    result = engine.complete(frame.gray, frame.sparse, K.fx, timer)
+    result, share = engine.complete(frame.gray, frame.sparse, K.fx, timer)
+    cloud_start = time.perf_counter()
     with timer(cloud_phase):
         depth, sigma = result.depth, result.sigma
         valid = result.mask & (depth > 0)
@@ -273,6 +292,8 @@ def complete_frame(
         stride = cloud_stride(kept, engine.max_points)
         points = back_project(depth, kept, K, stride=stride)
         trusted_count = int(np.count_nonzero(trusted))
+    in_process_s = timer.seconds["inference"] + time.perf_counter() - cloud_start
+    engine.served_budget.observe(in_process_s * 1e3, share)
     return Completed(
         completion=result,
         points=points,

@@ -12,8 +12,10 @@ takes an inference slot (``sdcnet.service.admission.TAKES_SLOT``: ``POST /comple
 - ``sdcnet_inference_phase_duration_seconds{phase}``: decode / queue / inference / encode (and
   the phases of a route's own, ``POST /pose``'s cloud and registration);
 - ``sdcnet_inference_pending_requests``: requests admitted and not yet answered;
-- ``sdcnet_model_info{version, provider, threads, work_pixels, frame_share}``; and the
-  process collector's ``process_*`` (CPU seconds, resident memory, open files).
+- ``sdcnet_model_info{version, provider, threads, work_pixels}``;
+- ``sdcnet_frame_share``: the share of their budget frames get now
+  (``sdcnet.frame_budget.ServedBudget``); and the process collector's ``process_*`` (CPU
+  seconds, resident memory, open files).
 
 Each application gets its own registry, so that two apps in one process do not collide.
 """
@@ -92,6 +94,11 @@ class ServiceMetrics:
             registry=self.registry,
         )
         self.model = Info("sdcnet_model", "The loaded model", registry=self.registry)
+        self.frame_share = Gauge(
+            "sdcnet_frame_share",
+            "The share of their budget frames get now (GET /model's frame_budget)",
+            registry=self.registry,
+        )
 
     def observe_phases(self, seconds: dict[str, float]) -> None:
         for phase, value in seconds.items():

@@ -209,7 +209,8 @@ class FrameBudgetInfo(BaseModel):
     )
     reference_ms: float | None = Field(
         description="this CPU's milliseconds for the reference frame at the model's budget, "
-        "measured at start-up; null: not measured (a fixed budget)"
+        "measured at start-up, or implied by the p95 of the latest frames served since (see "
+        "served_p95_ms); null: not measured (a fixed budget)"
     )
     expected_p95_ms: float | None = Field(
         description="the p95 frame expected at frame_share on this CPU; null: not measured"
@@ -217,6 +218,12 @@ class FrameBudgetInfo(BaseModel):
     met: bool | None = Field(
         description="whether expected_p95_ms is within deadline_ms; false: this CPU is too "
         "slow even at half the budget; null: not measured"
+    )
+    served_frames: int = Field(description="frames served since start-up")
+    served_p95_ms: float | None = Field(
+        description="p95 in-process milliseconds (the pipeline and the cloud) of the latest "
+        "frames (--budget-window), from which frame_share was last chosen again; null: not "
+        "yet re-read (fewer frames served, a fixed budget, or --budget-window 0)"
     )
 
 

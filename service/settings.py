@@ -12,6 +12,7 @@ from fastapi import Request
 from pydantic import Field, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from sdcnet.frame_budget import WINDOW_FRAMES
 from sdcnet.pointcloud import MAX_POINTS
 from sdcnet.runtime.registry import DEFAULT_RUNTIME, RUNTIMES
 
@@ -71,8 +72,17 @@ class Settings(BaseSettings):
         description="milliseconds a frame's in-process answer (the pipeline, its cloud and "
         "normals) is held to at p95; at start-up the service times its CPU on a reference "
         "frame and gives frames fewer working pixels than the model's where this CPU is too "
-        "slow for it (down to half: sdcnet.frame_budget, GET /model's frame_budget); 0: the "
-        "model's own budget, unmeasured. The LIDAR's period: 100 ms at 10 Hz",
+        "slow for it (down to half: sdcnet.frame_budget, GET /model's frame_budget), and "
+        "re-reads it from the frames served (budget_window); 0: the model's own budget, "
+        "unmeasured. The LIDAR's period: 100 ms at 10 Hz",
+    )
+    budget_window: int = Field(
+        default=WINDOW_FRAMES,
+        ge=0,
+        description="served frames the share of their budget is re-read from: every quarter "
+        "of this many, the p95 of the latest frames' in-process milliseconds chooses it again, "
+        "so that it follows this machine's speed and the frames it is sent "
+        "(sdcnet.frame_budget.ServedBudget); 0: the start-up measurement holds",
     )
     work_pixels: int | None = Field(
         default=None,

@@ -4,6 +4,7 @@ frames of large crops get fewer working pixels, the others keep them), all of it
 enough, never less than half."""
 
 import time
+from dataclasses import replace
 
 import httpx
 import numpy as np
@@ -13,6 +14,9 @@ from sdcnet.frame_budget import (
     DEADLINE_SHARE,
     MIN_SHARE,
     REFERENCE_MS,
+    FrameBudget,
+    ServedBudget,
+    budget_at,
     calibrate,
     expected_p95_ms,
     fixed,
@@ -134,6 +138,8 @@ def test_the_service_answers_at_the_budget_it_chose_and_says_how(tiny_model_path
         "reference_ms": None,
         "expected_p95_ms": None,
         "met": None,
+        "served_frames": 0,
+        "served_p95_ms": None,
     }
     fx = model.info.intrinsics.scaled(256, 256).fx
     at_fewer = complete(model.run, s.gray, s.sparse, fx, model.stride, fewer)
@@ -144,11 +150,78 @@ def test_the_service_answers_at_the_budget_it_chose_and_says_how(tiny_model_path
 
 
 def test_the_service_measures_its_cpu_for_the_deadline_by_default(tiny_model_path, tmp_path):
+    """--frame-ms measures the CPU at start-up; the served frames re-read it every quarter
+    of --budget-window (here 8 frames: every 2nd), and GET /model tells how many were served
+    and their p95."""
+    args = ("--frame-ms=60000", "--budget-window=8")
     with (
-        running_service(tiny_model_path, tmp_path / "timed.log", "--frame-ms=60000") as url,
+        running_service(tiny_model_path, tmp_path / "timed.log", *args) as url,
         httpx.Client(base_url=url, timeout=60) as http,
     ):
         chosen = http.get("/model").json()["frame_budget"]
+        for _ in range(3):
+            assert post(http, frame_files()).status_code == 200
+        served = http.get("/model").json()["frame_budget"]
     assert chosen["deadline_ms"] == 60_000 and chosen["met"] is True
     assert chosen["work_pixels"] == chosen["model_work_pixels"] and chosen["frame_share"] == 1.0
     assert chosen["reference_ms"] > 0 and 0 < chosen["expected_p95_ms"] < 60_000
+    assert chosen["served_frames"] == 0 and chosen["served_p95_ms"] is None
+    assert served["served_frames"] == 3 and 0 < served["served_p95_ms"] < 60_000
+    assert served["frame_share"] == 1.0 and served["met"] is True, "fast enough: all of it"
+    assert served["reference_ms"] != chosen["reference_ms"], "re-read from the frames served"
+
+
+def calibrated(reference_ms: float, deadline_ms: float = 100.0) -> FrameBudget:
+    return budget_at(reference_ms, WORK, deadline_ms)
+
+
+def serve(served: ServedBudget, milliseconds: float, frames: int) -> None:
+    """``frames`` frames of ``milliseconds`` each, at the share of the moment."""
+    for _ in range(frames):
+        served.observe(milliseconds, served.budget.frame_share)
+
+
+def test_served_frames_slower_than_expected_lower_the_share_and_faster_raise_it():
+    """The share follows the served frames' p95 toward DEADLINE_SHARE of the deadline: frames
+    slower than the calibration expected lower it, faster ones raise it, within its bounds."""
+    start = calibrated(REFERENCE_MS)
+    served = ServedBudget(start, window=16)
+    serve(served, start.expected_p95_ms * 1.2, 3)
+    assert served.budget.frame_share == start.frame_share, "re-read every 4th frame only"
+    serve(served, start.expected_p95_ms * 1.2, 1)
+    slower = served.budget
+    assert slower.served_frames == 4
+    assert slower.served_p95_ms == pytest.approx(start.expected_p95_ms * 1.2, abs=1e-3)
+    assert slower.frame_share < start.frame_share
+    assert slower.reference_ms == pytest.approx(1.2 * REFERENCE_MS, rel=1e-3)
+    assert slower.expected_p95_ms == pytest.approx(DEADLINE_SHARE * 100.0, abs=0.01)
+    serve(served, 1.0, 16)  # the whole window fast: all of the budget
+    assert served.budget.frame_share == 1.0 and served.budget.met is True
+    serve(served, 10_000.0, 16)  # the whole window far too slow: half, and says so
+    assert served.budget.frame_share == MIN_SHARE and served.budget.met is False
+    assert served.budget.served_frames == 36
+
+
+def test_frames_served_at_a_smaller_share_imply_the_same_cpu():
+    """A frame's milliseconds are read at the share it was served at: the p95 the constants
+    expect at that share keeps the share where it is."""
+    start = calibrated(1.3 * REFERENCE_MS)
+    served = ServedBudget(start, window=8)
+    serve(served, start.expected_p95_ms, 8)
+    assert served.budget.frame_share == pytest.approx(start.frame_share, abs=1e-3)
+
+
+@pytest.mark.parametrize(
+    "budget, window",
+    [(fixed(WORK // 4, WORK), 8), (calibrated(REFERENCE_MS), 0)],
+    ids=["fixed by the operator", "window 0"],
+)
+def test_a_budget_not_re_read_only_counts_its_frames(budget, window):
+    served = ServedBudget(budget, window=window)
+    serve(served, 10_000.0, 20)
+    assert served.budget == replace(budget, served_frames=20)
+
+
+def test_a_negative_window_is_refused():
+    with pytest.raises(ValueError, match="window must be 0"):
+        ServedBudget(calibrated(REFERENCE_MS), window=-1)

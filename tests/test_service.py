@@ -679,14 +679,14 @@ def test_metrics_move_with_requests(client):
     timed_after = metric(client, "sdcnet_inference_phase_duration_seconds_count", phase="inference")
     assert timed_after == timed + 1
     own = client.get("/model").json()["frame_budget"]["model_work_pixels"]
-    info = {  # Prometheus orders the labels by name; the tests' --frame-ms 0: the whole budget
-        "frame_share": "1",
+    info = {  # Prometheus orders the labels by name
         "provider": "CPUExecutionProvider",
         "threads": "1",
         "version": TINY_VERSION,
         "work_pixels": str(own),
     }
     assert metric(client, "sdcnet_model_info", **info) == 1
+    assert metric(client, "sdcnet_frame_share") == 1.0, "the tests' --frame-ms 0: all of it"
     assert metric(client, "sdcnet_inference_request_duration_seconds_count") >= 1
 
 
