@@ -12,14 +12,14 @@ default), with malloc set as the service sets it
 (``sdcnet.frame_budget.calibrate``, measured first, then re-read from the frames as they are
 served: ``ServedBudget``), beside it at the share chosen first and held, and at the whole
 budget (``--shares``: at other shares of it too; with two or more, the line through their
-p95, the constants ``sdcnet.frame_budget`` holds). Each model is first warmed up as ``sdc-serve`` warms
-it at start-up (``sdcnet.service.inference.warm_up``, at its largest accepted frame), so that
-no frame pays for the process's first memory. Per condition and over all frames: median,
-p95 and max in milliseconds, p95 / median, against the 100 ms a 10 Hz LIDAR leaves; and the
-slowest frames with their milliseconds on every pass, which tell a frame that is slow from a
-machine that was. With
-``--previous COMMIT``, the same frames through the previous shipped model and its own pipeline
-(``benchmarks/previous_model.py``, run after this one in the same command). Writes
+p95, the constants ``sdcnet.frame_budget`` holds). Each model is first warmed up as
+``sdc-serve`` warms it at start-up (``sdcnet.service.inference.warm_up``, at its largest
+accepted frame), so that no frame pays for the process's first memory. Per condition and
+over all frames: the frames' mean share, median, p95 and max in milliseconds, p95 / median,
+against the 100 ms a 10 Hz LIDAR leaves; and the slowest frames with their milliseconds on
+every pass, which tell a frame that is slow from a machine that was. With
+``--previous COMMIT``, the same frames through the previous shipped model and its own
+pipeline (``benchmarks/previous_model.py``, run after this one in the same command). Writes
 docs/benchmarks/pipeline_latency.md and .json.
 """
 

@@ -32,6 +32,7 @@ then holds the p95 of the frames this service is sent, whatever their mix.
 
 from __future__ import annotations
 
+import logging
 import statistics
 import threading
 import time
@@ -65,10 +66,15 @@ REFERENCE_DEPTH_M = 20.0
 REFERENCE_FOCAL_PX = 1000.0
 #: Timed runs of the reference frame (their median counts), after one untimed run.
 REPEATS = 5
+logger = logging.getLogger(__name__)
+
 #: Served frames whose milliseconds the share is re-read from, the latest (``ServedBudget``;
 #: ``sdc-serve --budget-window``): at 10 Hz, the last 6.4 s. It is re-read every quarter of
 #: them.
 WINDOW_FRAMES = 64
+#: A re-read share this far from the one before is logged (as is a deadline newly missed or
+#: met again).
+LOGGED_CHANGE = 0.05
 
 
 @dataclass(frozen=True)
@@ -247,3 +253,15 @@ class ServedBudget:
             chosen = budget_at(reference_ms, budget.model_work_pixels, budget.deadline_ms)
             p95 = round(float(np.percentile(served_ms, 95)), 3)
             self._budget = replace(chosen, served_frames=served, served_p95_ms=p95)
+        moved = abs(chosen.frame_share - budget.frame_share) >= LOGGED_CHANGE
+        if moved or chosen.met != budget.met:
+            logger.info(
+                "frames now get %.2f of their budget (was %.2f): the latest %d frames' p95 "
+                "%.1f ms; %.1f ms expected at p95 for --frame-ms %g",
+                chosen.frame_share,
+                budget.frame_share,
+                len(served_ms),
+                p95,
+                chosen.expected_p95_ms,
+                chosen.deadline_ms,
+            )

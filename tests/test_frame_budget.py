@@ -181,9 +181,11 @@ def serve(served: ServedBudget, milliseconds: float, frames: int) -> None:
         served.observe(milliseconds, served.budget.frame_share)
 
 
-def test_served_frames_slower_than_expected_lower_the_share_and_faster_raise_it():
+def test_served_frames_slower_than_expected_lower_the_share_and_faster_raise_it(caplog):
     """The share follows the served frames' p95 toward DEADLINE_SHARE of the deadline: frames
-    slower than the calibration expected lower it, faster ones raise it, within its bounds."""
+    slower than the calibration expected lower it, faster ones raise it, within its bounds;
+    a large move is logged."""
+    caplog.set_level("INFO", logger="sdcnet.frame_budget")
     start = calibrated(REFERENCE_MS)
     served = ServedBudget(start, window=16)
     serve(served, start.expected_p95_ms * 1.2, 3)
@@ -199,6 +201,7 @@ def test_served_frames_slower_than_expected_lower_the_share_and_faster_raise_it(
     assert served.budget.frame_share == 1.0 and served.budget.met is True
     serve(served, 10_000.0, 16)  # the whole window far too slow: half, and says so
     assert served.budget.frame_share == MIN_SHARE and served.budget.met is False
+    assert "frames now get 0.50 of their budget (was 1.00)" in caplog.text
     assert served.budget.served_frames == 36
 
 
