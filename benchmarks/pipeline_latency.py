@@ -109,7 +109,8 @@ def slowest_frames(
     conditions: list[Path], timed: dict[str, dict[str, list[list[tuple[float, float]]]]], name: str
 ) -> list[dict]:
     """The ``SLOWEST`` frames of runner ``name`` by their slowest pass: condition, sample id,
-    size (pixels), LIDAR returns and the milliseconds of every pass."""
+    size (pixels), LIDAR returns, and the milliseconds and share of its budget of every
+    pass."""
     frames = []
     for condition in conditions:
         store = SampleStore(condition)
@@ -122,6 +123,7 @@ def slowest_frames(
                     "size": f"{intrinsics['width']} x {intrinsics['height']}",
                     "returns": record["returns"],
                     "ms": [round(t, 1) for t, _ in passes],
+                    "shares": [round(share, 2) for _, share in passes],
                 }
             )
     return sorted(frames, key=lambda f: -max(f["ms"]))[:SLOWEST]
@@ -130,11 +132,13 @@ def slowest_frames(
 def slowest_rows(frames: list[dict]) -> str:
     """The slowest frames as a markdown table."""
     lines = [
-        "| condition | frame | size | returns | ms on each pass |",
+        "| condition | frame | size | returns | ms (share) on each pass |",
         "|---|---|---|---|---|",
     ]
     for f in frames:
-        passes = " / ".join(f"{t:.1f}" for t in f["ms"])
+        passes = " / ".join(
+            f"{t:.1f} ({share:.2f})" for t, share in zip(f["ms"], f["shares"], strict=True)
+        )
         lines.append(f"| {f['condition']} | {f['id']} | {f['size']} | {f['returns']} | {passes} |")
     return "\n".join(lines)
 
@@ -330,8 +334,8 @@ Regenerate: `{command}`.
 |---|---|---|---|---|---|---|---|---|
 {chr(10).join(rows)}
 
-**The slowest frames** of this model at the share served, by their slowest pass (the passes
-alike: the frame is slow; one pass alone: the machine was):
+**The slowest frames** of this model as served, by their slowest pass (the passes alike at
+one share: the frame is slow; one pass alone: the machine was, or the share had moved):
 
 {slowest_table}
 """
