@@ -72,6 +72,10 @@ logger = logging.getLogger(__name__)
 #: ``sdc-serve --budget-window``): at 10 Hz, the last 6.4 s. It is re-read every quarter of
 #: them.
 WINDOW_FRAMES = 64
+#: Most a share rises at one re-reading (falling, it goes at once): frames read at a small
+#: share can understate what a large one costs them (an earth frame at 0.50 took 50.6 ms, at
+#: 0.94 105.3), so the share climbs in steps that the next frames re-read.
+MAX_RISE = 0.1
 #: A re-read share this far from the one before is logged (as is a deadline newly missed or
 #: met again).
 LOGGED_CHANGE = 0.05
@@ -181,10 +185,12 @@ def expected_p95_ms(reference_ms: float, share: float) -> float:
     return reference_ms / REFERENCE_MS * (a + b * share)
 
 
-def budget_at(reference_ms: float, model_work_pixels: int, deadline_ms: float) -> FrameBudget:
+def budget_at(
+    reference_ms: float, model_work_pixels: int, deadline_ms: float, most: float = 1.0
+) -> FrameBudget:
     """The budget of a CPU that completes the reference frame in ``reference_ms``: the share
-    within the deadline (``share_within``) and the p95 expected at it."""
-    share = share_within(reference_ms, deadline_ms)
+    within the deadline (``share_within``), at most ``most``, and the p95 expected at it."""
+    share = min(share_within(reference_ms, deadline_ms), most)
     expected = expected_p95_ms(reference_ms, share)
     return FrameBudget(
         work_pixels=model_work_pixels,
@@ -217,7 +223,8 @@ class ServedBudget:
     """A calibrated budget (``calibrate``) re-read from the frames served with it: every
     ``window // 4`` frames, the p95 of the latest ``window`` frames' in-process milliseconds,
     each as the reference frame's it implies at the share it was served at
-    (``implied_reference_ms``), chooses the share again (``budget_at``). A budget not measured
+    (``implied_reference_ms``), chooses the share again (``budget_at``), up by at most
+    ``MAX_RISE`` at a time, down as far as it takes. A budget not measured
     (``fixed``: an operator's working pixels, or no deadline) and a ``window`` of 0 hold as
     they are. Safe to call from the service's threads at once."""
 
@@ -250,7 +257,8 @@ class ServedBudget:
                 return
             served_ms, implied = np.array(self._latest).T
             reference_ms = float(np.percentile(implied, 95))
-            chosen = budget_at(reference_ms, budget.model_work_pixels, budget.deadline_ms)
+            most = budget.frame_share + MAX_RISE
+            chosen = budget_at(reference_ms, budget.model_work_pixels, budget.deadline_ms, most)
             p95 = round(float(np.percentile(served_ms, 95)), 3)
             self._budget = replace(chosen, served_frames=served, served_p95_ms=p95)
         moved = abs(chosen.frame_share - budget.frame_share) >= LOGGED_CHANGE

@@ -12,6 +12,7 @@ import pytest
 
 from sdcnet.frame_budget import (
     DEADLINE_SHARE,
+    MAX_RISE,
     MIN_SHARE,
     REFERENCE_MS,
     FrameBudget,
@@ -181,11 +182,9 @@ def serve(served: ServedBudget, milliseconds: float, frames: int) -> None:
         served.observe(milliseconds, served.budget.frame_share)
 
 
-def test_served_frames_slower_than_expected_lower_the_share_and_faster_raise_it(caplog):
+def test_served_frames_slower_than_expected_lower_the_share():
     """The share follows the served frames' p95 toward DEADLINE_SHARE of the deadline: frames
-    slower than the calibration expected lower it, faster ones raise it, within its bounds;
-    a large move is logged."""
-    caplog.set_level("INFO", logger="sdcnet.frame_budget")
+    slower than the calibration expected lower it, re-read every quarter window."""
     start = calibrated(REFERENCE_MS)
     served = ServedBudget(start, window=16)
     serve(served, start.expected_p95_ms * 1.2, 3)
@@ -197,12 +196,23 @@ def test_served_frames_slower_than_expected_lower_the_share_and_faster_raise_it(
     assert slower.frame_share < start.frame_share
     assert slower.reference_ms == pytest.approx(1.2 * REFERENCE_MS, rel=1e-3)
     assert slower.expected_p95_ms == pytest.approx(DEADLINE_SHARE * 100.0, abs=0.01)
-    serve(served, 1.0, 16)  # the whole window fast: all of the budget
-    assert served.budget.frame_share == 1.0 and served.budget.met is True
-    serve(served, 10_000.0, 16)  # the whole window far too slow: half, and says so
+
+
+def test_the_share_climbs_by_steps_and_falls_at_once(caplog):
+    """Fast frames raise the share by ``MAX_RISE`` a re-reading, up to all of it; frames far
+    too slow take it to ``MIN_SHARE`` at the next re-reading, and the move is logged."""
+    caplog.set_level("INFO", logger="sdcnet.frame_budget")
+    served = ServedBudget(calibrated(5 * REFERENCE_MS), window=8)
+    assert served.budget.frame_share == MIN_SHARE
+    shares = []
+    for _ in range(6):
+        serve(served, 1.0, 2)
+        shares.append(served.budget.frame_share)
+    assert shares == pytest.approx([min(1.0, MIN_SHARE + k * MAX_RISE) for k in range(1, 7)])
+    assert served.budget.met is True
+    serve(served, 10_000.0, 2)
     assert served.budget.frame_share == MIN_SHARE and served.budget.met is False
     assert "frames now get 0.50 of their budget (was 1.00)" in caplog.text
-    assert served.budget.served_frames == 36
 
 
 def test_frames_served_at_a_smaller_share_imply_the_same_cpu():
