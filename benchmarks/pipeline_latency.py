@@ -45,7 +45,6 @@ from sdcnet.frame_budget import (
     DEADLINE_SHARE,
     REFERENCE_MS,
     SUITE_P95_MS,
-    WINDOW_FRAMES,
     FrameBudget,
     ServedBudget,
     answer_in_process,
@@ -106,19 +105,20 @@ def time_frames(
 
 
 def slowest_frames(
-    conditions: list[Path], timed: dict[str, dict[str, list[list[tuple[float, float]]]]], name: str
+    stores: dict[str, SampleStore],
+    timed: dict[str, dict[str, list[list[tuple[float, float]]]]],
+    name: str,
 ) -> list[dict]:
     """The ``SLOWEST`` frames of runner ``name`` by their slowest pass: condition, sample id,
     size (pixels), LIDAR returns, and the milliseconds and share of its budget of every
     pass."""
     frames = []
-    for condition in conditions:
-        store = SampleStore(condition)
-        for record, passes in zip(store.records, timed[condition.name][name], strict=True):
+    for condition, store in stores.items():
+        for record, passes in zip(store.records, timed[condition][name], strict=True):
             intrinsics = record["intrinsics"]
             frames.append(
                 {
-                    "condition": condition.name,
+                    "condition": condition,
                     "id": record["id"],
                     "size": f"{intrinsics['width']} x {intrinsics['height']}",
                     "returns": record["returns"],
@@ -198,10 +198,11 @@ def suite_line(results: dict, shares: list[float]) -> tuple[float, float] | None
 
 
 def budget_note(
-    budget: FrameBudget, served: FrameBudget, reference_ms: float, fit: tuple[float, float] | None
+    budget: FrameBudget, served: ServedBudget, reference_ms: float, fit: tuple[float, float] | None
 ) -> str:
     """What the calibration chose here (``sdcnet.frame_budget``), as sdc-serve does at start-up,
     where the frames' re-reading left it, and the constants this run measured."""
+    now = served.budget
     lines = [
         f"**This model's frames** start at {budget.frame_share:.2f} of their budget (at most "
         f"{budget.work_pixels} working pixels, fewer where a frame's own work is large): "
@@ -211,10 +212,10 @@ def budget_note(
         f"the whole budget then, {reference_ms:.1f} ms after the run (the constants' CPU: "
         f"{REFERENCE_MS:g} ms); expected p95 {budget.expected_p95_ms:.1f} ms. "
         f"`this model` is served as `sdc-serve` serves it, the share re-read from the "
-        f"latest {WINDOW_FRAMES} frames every {WINDOW_FRAMES // 4} "
+        f"latest {served.window} frames every {served.every} "
         f"(`sdcnet.frame_budget.ServedBudget`; its frames' mean share per row): after "
-        f"{served.served_frames} frames, {served.frame_share:.2f} (the latest frames' p95 "
-        f"{served.served_p95_ms:.1f} ms); `this model, start-up share` holds the first."
+        f"{now.served_frames} frames, {now.frame_share:.2f} (the latest frames' p95 "
+        f"{now.served_p95_ms:.1f} ms); `this model, start-up share` holds the first."
     ]
     if fit:
         lines.append(
@@ -271,9 +272,10 @@ def main(argv: list[str] | None = None) -> int:
         runners[f"this model at {share:g} of its budget"] = (model, own, at_share)
     for path, other in zip(args.beside, beside, strict=True):
         whole = fixed(other.info.work_pixels, other.info.work_pixels)
-        runners[path.stem] = (other, other.info.work_pixels, ServedBudget(whole))
+        runners[path.stem] = (other, other.info.work_pixels, ServedBudget(whole, window=0))
     conditions = sorted(d for d in args.data.iterdir() if (d / "manifest.jsonl").exists())
-    timed = {c.name: time_frames(runners, SampleStore(c), args.repeats) for c in conditions}
+    stores = {c.name: SampleStore(c) for c in conditions}
+    timed = {name: time_frames(runners, store, args.repeats) for name, store in stores.items()}
     reference_ms = frame_milliseconds(model.run, model.stride, own)
     results = {}
     for name in runners:
@@ -292,10 +294,10 @@ def main(argv: list[str] | None = None) -> int:
     ]
     print("\n".join(rows))
     fit = suite_line(results, args.shares)
-    served = runners["this model"][2].budget
+    served = runners["this model"][2]
     calibration_note = budget_note(budget, served, reference_ms, fit)
     print(calibration_note)
-    slowest = slowest_frames(conditions, timed, "this model")
+    slowest = slowest_frames(stores, timed, "this model")
     slowest_table = slowest_rows(slowest)
     print(slowest_table)
     command = " ".join(
@@ -341,7 +343,7 @@ one share: the frame is slow; one pass alone: the machine was, or the share had 
 """
     print(write_markdown("pipeline_latency", "The cost of every frame, per condition", body))
     results["frame budget"] = {**budget.describe(), "reference_ms_after": reference_ms}
-    results["frame budget served"] = served.describe()
+    results["frame budget served"] = served.budget.describe()
     results["slowest frames"] = slowest
     if fit:
         results["frame budget"]["suite_p95_line_ms"] = fit

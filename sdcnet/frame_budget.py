@@ -233,7 +233,9 @@ class ServedBudget:
             raise ValueError(f"window must be 0 (never re-read) or more frames, not {window}")
         self._budget = budget
         self._adapts = window > 0 and budget.reference_ms is not None and budget.deadline_ms > 0
-        self._every = max(1, window // 4)
+        self.window = window
+        #: Frames between two re-readings.
+        self.every = max(1, window // 4)
         self._latest: deque[tuple[float, float]] = deque(maxlen=max(window, 1))
         self._lock = threading.Lock()
 
@@ -252,7 +254,7 @@ class ServedBudget:
                 self._budget = replace(budget, served_frames=served)
                 return
             self._latest.append((milliseconds, implied_reference_ms(milliseconds, share)))
-            if served % self._every or len(self._latest) < self._every:
+            if served % self.every or len(self._latest) < self.every:
                 self._budget = replace(budget, served_frames=served)
                 return
             served_ms, implied = np.array(self._latest).T
