@@ -206,7 +206,7 @@ PREVIOUS_ANSWERS := runs/previous/answers
 THIRD ?= ab691bf
 THIRD_ONNX := runs/third/third-model.onnx
 MESHES ?= ../shared/real-meshes
-CONDITIONS := paper earth sun-moon wide-multibeam flash docking docking-2048 narrow-far any
+CONDITIONS := paper other-renderer earth sun-moon wide-multibeam flash docking docking-2048 narrow-far any
 $(THIRD_ONNX):
 	mkdir -p $(dir $@) && git show $(THIRD):models/sdcnet.onnx > $@
 # the eighth shipped model (git $(EIGHTH)), the one this model averages with its fine-tunes

@@ -34,6 +34,7 @@ from sdcnet.training.data.sequence import (
     write_sequences,
 )
 from sdcnet.training.data.spacecraft import SpacecraftModel, load_mesh_file
+from sdcnet.training.data.styles import STYLE_KINDS
 
 #: Model ids of ``sdc-data sequence --meshes`` files: after any procedural dataset's.
 MESH_IDS = 1000
@@ -72,6 +73,7 @@ def _config(args: argparse.Namespace) -> GenerateConfig:
         meshes=meshes,
         mesh_split=args.mesh_split,
         world=args.world,
+        styles=tuple(args.styles),
         only_splits=tuple(args.only_splits),
     )
 
@@ -251,6 +253,16 @@ def parser() -> argparse.ArgumentParser:
         help="how each frame's camera, sensor, LIDAR, range and sky are drawn: paper (Tables "
         "1-2, 50-250 m, stars), any (every factor), mixed (a quarter paper, the rest any) or "
         "one robustness condition (default paper)",
+    )
+    g.add_argument(
+        "--styles",
+        nargs="*",
+        default=[],
+        choices=STYLE_KINDS,
+        metavar="STYLE",
+        help="render styles drawn per frame instead of the world's: ours (one ray a pixel, "
+        "Blinn-Phong, hard shadows), pbr (anti-aliased, GGX, a fill light, stains); e.g. ours "
+        "pbr (default: the world's, ours but for the other-renderer condition)",
     )
     g.add_argument(
         "--only-splits",

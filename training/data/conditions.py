@@ -11,7 +11,8 @@ each factor records itself in the sample's metadata.
   ranges 2-300 m (log-uniform, never inside the spacecraft), any background
   (``background/``), the sun from anywhere in front of the target to behind it;
 - ``mixed``: the training mixture, a quarter ``paper`` and the rest ``any``;
-- the robustness suite's conditions (``ROBUSTNESS``): one factor pushed at a time.
+- the robustness suite's conditions (``ROBUSTNESS``): one factor pushed at a time, the
+  renderer's style (``styles.py``) among them.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from sdcnet.training.data.background import BACKGROUND_KINDS
 from sdcnet.training.data.lidar import Lidar, sample_lidar
 from sdcnet.training.data.scene import SceneConfig
 from sdcnet.training.data.sensor import Sensor, sample_sensor
+from sdcnet.training.data.styles import OURS, RenderStyle, sample_style
 
 #: Image widths cameras are drawn from, and aspect ratios (width / height).
 WIDTHS = (512, 640, 768, 1024, 1024, 1280, 1536, 2048)
@@ -69,7 +71,9 @@ class World:
     ``"paper"`` or a ``CameraDraw``; ``sensor``: a ``SENSOR_KINDS`` name; ``lidar``: LIDAR
     kinds drawn uniformly (``lidar.LIDAR_KINDS``; empty: ``sample_lidar``'s own mixture);
     ``backgrounds``: background kinds drawn uniformly (empty: ``sample_background``'s mixture
-    of the kinds the scene's Sun allows, and ``sun_share`` of frames with the Sun in view)."""
+    of the kinds the scene's Sun allows, and ``sun_share`` of frames with the Sun in view);
+    ``styles``: render styles drawn uniformly (``styles.STYLE_KINDS``), drawn after every
+    other factor so that a world differing only in them draws the same frames otherwise."""
 
     name: str
     camera: CameraDraw | str = PAPER_CAMERA_DRAW
@@ -78,11 +82,12 @@ class World:
     backgrounds: tuple[str, ...] = ("stars",)
     scene: SceneConfig = field(default_factory=SceneConfig)
     sun_share: float = 0.0  # with empty ``backgrounds``: frames with the Sun in or near view
+    styles: tuple[str, ...] = ("ours",)
 
 
 @dataclass(frozen=True)
 class Conditions:
-    """One frame's camera, sensor, LIDAR, sky and scene ranges."""
+    """One frame's camera, sensor, LIDAR, sky, scene ranges and render style."""
 
     world: str
     intrinsics: Intrinsics
@@ -90,12 +95,14 @@ class Conditions:
     lidar: Lidar
     background: str | None  # a background kind, or None: the background sampler's mixture
     scene: SceneConfig
+    style: RenderStyle = OURS
 
     def metadata(self) -> dict:
         return {
             "world": self.world,
             "sensor": self.sensor.metadata(),
             "lidar": self.lidar.metadata(),
+            "render_style": self.style.metadata(),
         }
 
 
@@ -114,7 +121,8 @@ def draw_conditions(world: World, rng: np.random.Generator, size: int = 1024) ->
     background = _pick(rng, world.backgrounds)
     if not world.backgrounds and rng.random() < world.sun_share:
         background = "sun"
-    return Conditions(world.name, K, sensor, lidar, background, world.scene)
+    style = sample_style(rng, _pick(rng, world.styles))
+    return Conditions(world.name, K, sensor, lidar, background, world.scene, style)
 
 
 PAPER = World("paper")
@@ -147,6 +155,8 @@ ROBUSTNESS: dict[str, World] = {
     world.name: world
     for world in (
         PAPER,
+        # the paper's frames drawn by a physically based renderer: the same draws otherwise
+        World("other-renderer", styles=("pbr",)),
         World("earth", backgrounds=("earth-nadir", "earth-oblique", "earth-limb")),
         World("sun-moon", backgrounds=("sun", "moon")),
         World(

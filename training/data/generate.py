@@ -52,6 +52,7 @@ class GenerateConfig:
     meshes: tuple[MeshEntry, ...] = ()  # users' meshes, appended after the procedural models
     mesh_split: str = "real"
     world: str = "paper"  # how cameras, LIDARs, ranges and skies are drawn (conditions.WORLDS)
+    styles: tuple[str, ...] = ()  # render styles drawn per frame (styles.STYLE_KINDS); () = world's
     only_splits: tuple[str, ...] = ()  # render only the models of these splits (empty: all)
 
     @property
@@ -74,6 +75,8 @@ class GenerateConfig:
         ]
         if self.world != "paper":
             parts.append(f"--world {self.world}")
+        if self.styles:
+            parts.append("--styles " + " ".join(self.styles))
         if self.only_splits:
             parts.append("--only-splits " + " ".join(self.only_splits))
         if self.split is not None:
@@ -123,7 +126,12 @@ def render_scene(
     sky = sample_background(np.random.default_rng([*seeds, 5]), K, scene.sun, conditions.background)
     background = render_background(sky, K, scene.sun, np.random.default_rng([*seeds, 6]))
     frame = render_camera(
-        posed, K, np.random.default_rng([*seeds, 2]), background, conditions.sensor
+        posed,
+        K,
+        np.random.default_rng([*seeds, 2]),
+        background,
+        conditions.sensor,
+        conditions.style,
     )
     lidar = within_range(conditions.lidar, scene, model)
     sparse = scan_lidar(posed, lidar, K, np.random.default_rng([*seeds, 3]))
@@ -150,7 +158,10 @@ def within_range(lidar: Lidar, scene: Scene, model: SpacecraftModel) -> Lidar:
 def frame_conditions(config: GenerateConfig, model_id: int, view: int) -> Conditions:
     """The conditions of one frame: drawn from the dataset's world, seeded by the frame."""
     rng = np.random.default_rng([config.seed, model_id, view, 4])
-    conditions = draw_conditions(world_for_frame(config.world, rng), rng, config.size)
+    world = world_for_frame(config.world, rng)
+    if config.styles:  # drawn last: the frames are the world's but for their style
+        world = replace(world, styles=config.styles)
+    conditions = draw_conditions(world, rng, config.size)
     return conditions if config.scene is None else replace(conditions, scene=config.scene)
 
 
@@ -186,7 +197,7 @@ def _generate_one(args: tuple[GenerateConfig, Path, int, int, str]) -> str:
 def dataset_info(config: GenerateConfig) -> dict:
     splits = model_splits(config)
     counts = config.split_counts()
-    return {
+    info = {
         "format_version": FORMAT_VERSION,
         "generator": f"sdcnet {__version__}",
         "command": config.command(),
@@ -204,6 +215,9 @@ def dataset_info(config: GenerateConfig) -> dict:
         "user_meshes": [entry.describe() for entry in config.meshes],
         "model_split": {str(k): v for k, v in sorted(splits.items())},
     }
+    if config.styles:  # only when given: the datasets made before it keep their record
+        info["styles"] = list(config.styles)
+    return info
 
 
 def generate(
