@@ -90,6 +90,8 @@ FACTORS: dict[str, FactorFn] = {
     ),
     "defocus": lambda s: "yes" if s.meta["sensor"]["defocus_px"] > 0 else "no",
     "Sun from the camera's axis": lambda s: binned(s.meta["sun_angle_deg"], (45, 90, 135), " deg"),
+    # frames made before render styles were drawn are ours
+    "render style": lambda s: s.meta.get("render_style", {}).get("kind", "ours"),
 }
 
 

@@ -47,7 +47,8 @@ def test_each_value_holds_its_share_of_the_first_methods_deficit():
 def test_rendered_frames_are_grouped_by_what_their_metadata_records(tmp_path):
     data, out = tmp_path / "any", tmp_path / "factors"
     render = ["generate", "--out", str(data), "--models", "6", "--views", "2", "--size", "128"]
-    assert data_main([*render, "--world", "any", "--only-splits", "test", "--quiet"]) == 0
+    world = ["--world", "any", "--styles", "ours", "pbr", "--only-splits", "test", "--quiet"]
+    assert data_main([*render, *world]) == 0
     assert eval_main(["factors", "--floor", "--data", str(data), "--out", str(out)]) == 0
 
     report = json.loads((out / "factors.json").read_text())
@@ -58,6 +59,7 @@ def test_rendered_frames_are_grouped_by_what_their_metadata_records(tmp_path):
         sample = samples[frame["id"]]
         assert frame["factors"]["background"] == sample.meta["background"]["kind"]
         assert frame["factors"]["LIDAR"] == sample.meta["lidar"]["kind"]
+        assert frame["factors"]["render style"] == sample.meta["render_style"]["kind"]
         fill_mask = classical(sample).mask
         assert frame["iou"]["classical fill"] == pytest.approx(mask_iou(fill_mask, sample.mask))
     for factor in FACTORS:

@@ -56,7 +56,7 @@ def test_the_other_renderer_draws_the_paper_frames_but_for_the_gray_image():
 def test_every_pbr_draw_is_within_its_ranges_and_ours_draws_nothing_new():
     for seed in range(20):
         style = sample_style(np.random.default_rng(seed), "pbr")
-        assert 2 <= style.samples <= 4 and style.brdf == "ggx"
+        assert style.kind == "pbr" and 2 <= style.samples <= 4 and style.brdf == "ggx"
         assert 0.02 <= style.fill <= 0.3 and 0 <= style.stain <= 0.4
         assert math.isclose(np.linalg.norm(style.fill_direction), 1.0, rel_tol=1e-9)
     assert sample_style(np.random.default_rng(0), "ours") is OURS

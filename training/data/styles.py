@@ -32,10 +32,11 @@ STYLE_KINDS = ("ours", "pbr")
 
 @dataclass(frozen=True)
 class RenderStyle:
-    """One renderer's way of drawing: rays a pixel side, reflection model, fill light
-    (irradiance, Sun = 1, and its unit direction in the camera frame), albedo variation
-    (fraction) and its pattern's seed and scale (metres)."""
+    """One renderer's way of drawing (``kind``: a ``STYLE_KINDS`` name): rays a pixel side,
+    reflection model, fill light (irradiance, Sun = 1, and its unit direction in the camera
+    frame), albedo variation (fraction) and its pattern's seed and scale (metres)."""
 
+    kind: str = "ours"
     samples: int = 1
     brdf: str = "blinn-phong"
     fill: float = 0.0
@@ -66,6 +67,7 @@ def sample_style(rng: np.random.Generator, kind: str = "ours") -> RenderStyle:
     direction = rng.normal(size=3)
     direction /= np.linalg.norm(direction)
     return RenderStyle(
+        kind="pbr",
         samples=int(rng.integers(2, 5)),
         brdf="ggx",
         fill=float(math.exp(rng.uniform(math.log(0.02), math.log(0.3)))),
