@@ -34,6 +34,7 @@ NEEDS_TRAINING = {
     "test_sequence.py",  # sdc-data sequence
     "test_training.py",
     "test_worlds.py",  # the generator's worlds
+    "test_styles.py",  # the generator's render styles
     "test_evaluation.py",  # the classical fill, stored answers, the robustness suite
     "test_factors.py",  # sdc-eval factors on frames the generator renders
     "test_generalisation.py",  # the shipped model on frames the generator renders
