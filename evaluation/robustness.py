@@ -1,8 +1,9 @@
 """The robustness suite (``sdc-eval robustness``): every condition users fly, model against fill.
 
 Each condition of ``sdcnet.training.data.conditions.ROBUSTNESS`` pushes one factor away from
-the paper's world (the Earth or the Sun behind the target, a wide camera with a rotating
-multi-beam LIDAR, a flash LIDAR, docking range, a narrow camera far away, everything at once).
+the paper's world (another renderer's way of drawing the paper's frames, the Earth or the Sun
+behind the target, a wide camera with a rotating multi-beam LIDAR, a flash LIDAR, docking
+range, a narrow camera far away, everything at once).
 Its frames are rendered from spacecraft no model was trained on: the test split's procedural
 models of the reference dataset and the real meshes (``shared/real-meshes``). Per condition
 and method it reports the mask (IOU, false specks), the depth on the classical fill's pixels
