@@ -150,10 +150,11 @@ def shade(
 
 @dataclass
 class Radiance:
-    """The spacecraft as the renderer sees it: linear radiance (H, W) float64, the mean over a
-    pixel's rays of those that hit (0 off it); the share of a pixel's rays that hit (H, W)
-    float64, 1 or 0 with one ray a pixel; ground-truth depth (H, W) float32 metres at pixel
-    centres (0 = background)."""
+    """The spacecraft as the renderer sees it: linear radiance (H, W) float64, the radiance of
+    a pixel's rays that hit summed over all its rays' count (0 off it: the background adds the
+    rest, by ``coverage``); the share of a pixel's rays that hit (H, W) float64, 1 or 0 with
+    one ray a pixel; ground-truth depth (H, W) float32 metres at pixel centres (0 =
+    background)."""
 
     radiance: np.ndarray
     coverage: np.ndarray
