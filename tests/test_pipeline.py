@@ -17,6 +17,7 @@ from sdcnet.pipeline import (
     guide_gain,
     guided_probability,
     mask_box,
+    nearest_resampled,
     region_around,
     region_of_interest,
     resample_depth,
@@ -24,6 +25,7 @@ from sdcnet.pipeline import (
     resample_sparse,
     return_spacing,
     row_ends,
+    source_indices,
     vouched_mask,
     working_grid,
 )
@@ -393,6 +395,54 @@ def test_drop_specks_keeps_exactly_the_components_a_return_lies_on(specks):
     expected = np.zeros_like(mask)
     expected[rows[hit], cols[hit]] = True
     assert np.array_equal(drop_specks(mask, sparse, reach_px=0), expected)
+
+
+@pytest.mark.parametrize(
+    "source, shape, window",
+    [
+        ((23, 17), (80, 50), Region(3, 77, 0, 50)),  # enlarged, a window
+        ((40, 31), (40, 31), None),  # the same grid
+        ((90, 70), (31, 29), Region(5, 6, 0, 29)),  # shrunk, one row
+        ((7, 300), (700, 2048), Region(0, 700, 1000, 1999)),  # enlarged unevenly
+    ],
+)
+def test_nearest_resampled_takes_the_source_pixel_under_each_pixels_centre(source, shape, window):
+    image = np.arange(source[0] * source[1], dtype=np.float32).reshape(source)
+    out = nearest_resampled(image, shape, window)
+    w = Region(0, shape[0], 0, shape[1]) if window is None else window
+    rows = source_indices(w.y0, w.y1, shape[0], source[0])
+    cols = source_indices(w.x0, w.x1, shape[1], source[1])
+    assert np.array_equal(out, image[rows[:, None], cols[None, :]])
+    assert np.array_equal(out, nearest_resampled(image, shape)[w.slices])
+    assert np.array_equal(rows, np.floor((np.arange(w.y0, w.y1) + 0.5) * source[0] / shape[0]))
+
+
+@pytest.mark.parametrize("specks", [40, 400])  # both ways of keeping the vouched components
+@pytest.mark.parametrize("reach", [0, 1, 2])
+def test_drop_specks_keeps_the_components_within_reach_of_a_return(specks, reach):
+    """Blobs of one to a few pixels and two large parts; returns on some, beside others (up to
+    3 px off): the kept pixels are those of every component whose pixels come within ``reach``
+    (Chebyshev) of a return, found here label by label."""
+    rng = np.random.default_rng(specks + reach)
+    mask = np.zeros((240, 240), bool)
+    mask[10:60, 10:200] = True  # a panel
+    mask[100:230, 90:110] = True  # a boom
+    for y, x in zip(rng.integers(0, 236, specks), rng.integers(0, 236, specks), strict=True):
+        mask[y : y + rng.integers(1, 4), x : x + rng.integers(1, 4)] = True
+    sparse = np.zeros(mask.shape, np.float32)
+    ys, xs = np.nonzero(mask)
+    pick = rng.choice(len(ys), specks // 4, replace=False)
+    offsets = rng.integers(-3, 4, (len(pick), 2))
+    sparse[
+        np.clip(ys[pick] + offsets[:, 0], 0, 239), np.clip(xs[pick] + offsets[:, 1], 0, 239)
+    ] = 40.0
+    count, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    assert (count > 257) == (specks == 400)
+    reached = cv2.dilate((sparse > 0).astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8))
+    vouched = {label for label in np.unique(labels[reached > 0]) if label > 0}
+    expected = np.isin(labels, list(vouched))
+    assert 0 < expected.sum() < mask.sum()
+    assert np.array_equal(drop_specks(mask, sparse, reach), expected)
 
 
 @pytest.mark.parametrize("specks", [40, 400])
