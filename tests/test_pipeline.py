@@ -433,9 +433,9 @@ def test_drop_specks_keeps_the_components_within_reach_of_a_return(specks, reach
     ys, xs = np.nonzero(mask)
     pick = rng.choice(len(ys), specks // 4, replace=False)
     offsets = rng.integers(-3, 4, (len(pick), 2))
-    sparse[
-        np.clip(ys[pick] + offsets[:, 0], 0, 239), np.clip(xs[pick] + offsets[:, 1], 0, 239)
-    ] = 40.0
+    at_y = np.clip(ys[pick] + offsets[:, 0], 0, 239)
+    at_x = np.clip(xs[pick] + offsets[:, 1], 0, 239)
+    sparse[at_y, at_x] = 40.0
     count, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
     assert (count > 257) == (specks == 400)
     reached = cv2.dilate((sparse > 0).astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8))
