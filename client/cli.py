@@ -42,16 +42,29 @@ from sdcnet.client.tracking import Tracker
 EXIT_OK, EXIT_FAILED_PAIRS, EXIT_INPUT, EXIT_SERVICE, EXIT_UNREACHABLE = 0, 1, 2, 3, 4
 
 
-def _connection_options() -> argparse.ArgumentParser:
+def _connection_options(defaults: bool) -> argparse.ArgumentParser:
+    """``--url``, ``--timeout``, ``--retries`` and ``--debug``, taken before the command and
+    after it (``sdc-client --url U infer ...`` as ``sdc-client infer --url U ...``): the
+    top-level parser's copies hold the ``defaults``, the commands' copies none, so that an
+    option given before the command is not overwritten by a command's default."""
     common = argparse.ArgumentParser(add_help=False)
+
+    def default(value: object) -> object:
+        return value if defaults else argparse.SUPPRESS
+
     common.add_argument(
-        "--url", default=DEFAULT_URL, help=f"service URL (default: $SDCNET_URL or {DEFAULT_URL})"
+        "--url",
+        default=default(DEFAULT_URL),
+        help=f"service URL (default: $SDCNET_URL or {DEFAULT_URL})",
     )
-    common.add_argument("--timeout", type=float, default=60.0, help="seconds per attempt")
+    common.add_argument("--timeout", type=float, default=default(60.0), help="seconds per attempt")
     common.add_argument(
-        "--retries", type=int, default=3, help="retries on connection errors and 503"
+        "--retries",
+        type=int,
+        default=default(3),
+        help="retries on connection errors and 503",
     )
-    add_debug_flag(common)
+    add_debug_flag(common, default=default(False))
     return common
 
 
@@ -96,9 +109,11 @@ def parser() -> argparse.ArgumentParser:
         "an sdcnet service.",
         epilog="exit status: 0 ok, 1 some batch pairs failed, 2 bad local input, "
         "3 error answer from the service, 4 service unreachable or not ready",
+        parents=[_connection_options(defaults=True)],
     )
     sub = p.add_subparsers(dest="command", required=True)
-    common, frame, depth = _connection_options(), _frame_options(), _depth_options()
+    common = _connection_options(defaults=False)
+    frame, depth = _frame_options(), _depth_options()
     infer = sub.add_parser(
         "infer", parents=[common, frame, depth], help="complete one frame and write its files"
     )

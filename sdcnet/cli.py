@@ -21,9 +21,13 @@ EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report it
 FILE_AND_VALUE_ERRORS: Mapping[type[Exception], int] = {OSError: 2, ValueError: 2}
 
 
-def add_debug_flag(parser: argparse.ArgumentParser) -> None:
+def add_debug_flag(parser: argparse.ArgumentParser, default: object = False) -> None:
+    """``--debug``; ``default`` ``argparse.SUPPRESS`` where a parent parser holds it."""
     parser.add_argument(
-        "--debug", action="store_true", help="print the traceback of any error (for bug reports)"
+        "--debug",
+        action="store_true",
+        default=default,
+        help="print the traceback of any error (for bug reports)",
     )
 
 

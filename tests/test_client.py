@@ -19,7 +19,7 @@ import pytest
 
 from sdcnet.camera import GivenIntrinsics
 from sdcnet.caveats import CAVEATS, FEW_RETURNS
-from sdcnet.client.api import Client, Completion, ServiceError
+from sdcnet.client.api import DEFAULT_URL, Client, Completion, ServiceError
 from sdcnet.client.batch import find_pairs
 from sdcnet.client.cli import frame_kwargs, main, parser
 from sdcnet.client.outputs import OUTPUT_FILES, normal_image
@@ -387,3 +387,22 @@ def test_the_client_imports_no_torch_onnxruntime_fastapi_or_httpx():
         [sys.executable, "-m", "sdcnet.client", "--help"], capture_output=True, text=True
     )
     assert result.returncode == 0 and "infer" in result.stdout and "batch" in result.stdout
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["health"], (DEFAULT_URL, 60.0, 3, False)),
+        (["--url", "http://h:1", "--retries", "0", "health"], ("http://h:1", 60.0, 0, False)),
+        (["model", "--url", "http://h:1", "--debug"], ("http://h:1", 60.0, 3, True)),
+        # given on both sides, the command's own wins
+        (
+            ["--url", "http://a:1", "--timeout", "5", "health", "--url", "http://b:2"],
+            ("http://b:2", 5.0, 3, False),
+        ),
+        (["--debug", "infer", "g.png", "s.npy"], (DEFAULT_URL, 60.0, 3, True)),
+    ],
+)
+def test_the_connection_options_go_before_or_after_the_command(argv, expected):
+    args = parser().parse_args(argv)
+    assert (args.url, args.timeout, args.retries, args.debug) == expected
