@@ -392,8 +392,8 @@ def nearest_resampled(
     window = Region(0, shape[0], 0, shape[1]) if window is None else window
     rows = source_indices(window.y0, window.y1, shape[0], image.shape[0])
     cols = source_indices(window.x0, window.x1, shape[1], image.shape[1])
-    if not (len(rows) and len(cols)):
-        return np.take(np.take(image, rows, axis=0), cols, axis=1)  # an empty window
+    if not (len(rows) and len(cols)):  # an empty window
+        return np.empty((len(rows), len(cols)), image.dtype)
     run = image[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
     widened = np.repeat(run, np.bincount(cols - cols[0]), axis=1)
     return np.repeat(widened, np.bincount(rows - rows[0]), axis=0)
