@@ -98,9 +98,11 @@ docker-check: $(STAMP)
 ## weights and two fine-tunes of its FSNet on one GPU, side by side on the frames 16 cores
 ## rendered of 800 new models in 220 s (data/mixed-s7, seed 7: 2144 frames), at lr 3e-4 and
 ## 1e-4, each stopped by its 270 s slot after 8 of its 10 epochs (`sdc-train average`). The
-## tenth (shipped) is the mean of the ninth and one fine-tune of its FSNet on 2 cores (8
+## tenth is the mean of the ninth and one fine-tune of its FSNet on 2 cores (8
 ## epochs at lr 3e-4, 18 min) on 2058 frames of 686 new models (data/mixed-s10, seed 10;
-## 10 min to render), its depth networks and sigma the seventh's.
+## 10 min to render), its depth networks and sigma the seventh's. The eleventh (shipped) is
+## the tenth's recipe once more, on 2058 new frames drawn in both render styles (data/mixed-s62,
+## seed 62, --styles ours pbr; 59 min to render beside other work), averaged with the tenth.
 .PHONY: model
 PRESET ?= cpu
 PREVIOUS ?= e6a386e
@@ -135,6 +137,11 @@ FITS10 := $(VENV)/bin/sdc-train fit --data data/mixed-s10 --preset $(PRESET) --i
 	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
 	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 1 \
 	--init-weights runs/ninth/shipped.pt --fsnet-epochs 8
+# the eleventh: the same recipe on frames in both render styles, from the tenth
+FITS62 := $(VENV)/bin/sdc-train fit --data data/mixed-s62 --preset $(PRESET) --iou-loss 1 \
+	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
+	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 1 \
+	--init-weights runs/tenth/shipped.pt --fsnet-epochs 8
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
@@ -193,6 +200,11 @@ model: $(STAMP)
 		--world mixed --seed 10 --only-splits train val --workers 2 --quiet
 	$(FITS10) --out runs/s59a --lr 3e-4 --seed 59
 	$(VENV)/bin/sdc-train average --checkpoints runs/ninth/shipped.pt runs/s59a/best_stage1.pt \
+		--out runs/tenth/shipped.pt
+	$(VENV)/bin/sdc-data generate --out data/mixed-s62 --models 800 --views 3 --size 1024 \
+		--world mixed --seed 62 --styles ours pbr --only-splits train val --workers 2 --quiet
+	$(FITS62) --out runs/s62a --lr 3e-4 --seed 62
+	$(VENV)/bin/sdc-train average --checkpoints runs/tenth/shipped.pt runs/s62a/best_stage1.pt \
 		--out models/sdcnet.pt
 	$(MAKE) reports
 
