@@ -146,16 +146,25 @@ def frame_pixels_under(
     columns in the window and the index (0..E-1) of the working pixel each lies under.
     ``frame_rows`` (H,) and ``frame_cols`` (W,), non-decreasing: the working row and column
     under each of the window's rows and columns."""
-    first_row = np.searchsorted(frame_rows, rows, "left")
-    row_count = np.searchsorted(frame_rows, rows, "right") - first_row
-    first_col = np.searchsorted(frame_cols, cols, "left")
-    col_count = np.searchsorted(frame_cols, cols, "right") - first_col
+    first_row, row_count = frame_run(frame_rows, rows)
+    first_col, col_count = frame_run(frame_cols, cols)
     span_y, span_x = int(row_count.max(initial=0)), int(col_count.max(initial=0))
     dy = np.arange(span_y)[None, :, None]
     dx = np.arange(span_x)[None, None, :]
     inside = (dy < row_count[:, None, None]) & (dx < col_count[:, None, None])
     owner, iy, ix = np.nonzero(inside)
     return first_row[owner] + iy, first_col[owner] + ix, owner
+
+
+def frame_run(frame_index: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each working row (or column) of ``index`` (E,), the first of the window's rows
+    (columns) under it and how many: ``frame_index`` (H,), non-decreasing, the working row
+    under each of the window's. Looked up in a table of every working row's first (a search
+    per working row, in order, rather than one per pixel of ``index``, in no order: 1.8 ->
+    0.05 ms for 16,384 edge pixels' columns)."""
+    firsts = np.searchsorted(frame_index, np.arange(int(index.max(initial=-1)) + 2), "left")
+    first = firsts[index]
+    return first, firsts[index + 1] - first
 
 
 def paste_across_edges(
