@@ -137,3 +137,46 @@ class SampleStore:
 
     def load(self, record: dict) -> Sample:
         return read_sample(self.root / record["file"])
+
+
+def merge(out: str | Path, sources: list[str | Path], command: str) -> SampleStore:
+    """A dataset ``out`` holding every sample of the datasets ``sources``, to train on their
+    frames together (your own spacecraft beside ours, a world drawn apart beside another).
+    Nothing is copied: ``out``'s manifest refers to the sources' sample files by paths
+    relative to it, so the folders must stay where they are. Each record's id is its source
+    folder's name and its own id (``mine/m0001_v000``), unique across the sources.
+    ``dataset.json`` records ``command`` and each source's own description (``merged_from``)."""
+    out = Path(out)
+    if len(sources) < 2:
+        raise ValueError("merge needs at least two datasets")
+    names = [Path(s).resolve().name for s in sources]
+    if len(set(names)) < len(names):
+        raise ValueError(f"the datasets' folder names must differ: {names}")
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out} exists and is not empty: merge into a new folder")
+    stores = [SampleStore(s) for s in sources]
+    for source, store in zip(sources, stores, strict=True):
+        if store.info.get("format_version") != FORMAT_VERSION:
+            raise ValueError(
+                f"{source}: format version {store.info.get('format_version')}, not {FORMAT_VERSION}"
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    records = []
+    for name, store in zip(names, stores, strict=True):
+        prefix = os.path.relpath(store.root.resolve(), out.resolve())
+        records += [
+            r | {"id": f"{name}/{r['id']}", "file": f"{prefix}/{r['file']}"} for r in store.records
+        ]
+    info = {
+        "command": command,
+        "format_version": FORMAT_VERSION,
+        "world": "merged",
+        "merged_from": [
+            {"folder": str(Path(s)), "frames": len(store)}
+            | {k: store.info.get(k) for k in ("command", "seed", "world")}
+            for s, store in zip(sources, stores, strict=True)
+        ],
+    }
+    write_atomically(out / "dataset.json", json.dumps(info, indent=1, sort_keys=True) + "\n")
+    write_manifest(out, records)
+    return SampleStore(out)

@@ -10,6 +10,7 @@ import trimesh
 from sdcnet.camera import PAPER_CAMERA, PAPER_LIDAR
 from sdcnet.dataset_format import SampleStore
 from sdcnet.meshes import read_mesh_folder
+from sdcnet.training.data.cli import main as data_main
 from sdcnet.training.data.generate import GenerateConfig, close, generate, model_splits
 from sdcnet.training.data.lidar import scan
 from sdcnet.training.data.materials import Material, jittered_shading
@@ -179,3 +180,56 @@ def test_a_stopped_generation_is_closed_over_its_complete_samples(tmp_path):
     assert len(generate(config, out, progress=False)) == 6  # resumed: the cut sample redone
     with pytest.raises(FileNotFoundError, match="not a dataset"):
         close(tmp_path)
+
+
+def test_merged_datasets_hold_every_frame_of_each_under_its_own_id(tiny_dataset, tmp_path):
+    other = tmp_path / "other"
+    generate(GenerateConfig(models=3, views=1, size=128, seed=1), other, progress=False)
+    out = tmp_path / "runs" / "both"  # not beside the sources: paths relative to it
+    assert data_main(["merge", "--out", str(out), str(tiny_dataset), str(other)]) == 0
+    merged, first, second = SampleStore(out), SampleStore(tiny_dataset), SampleStore(other)
+    assert len(merged) == len(first) + len(second) == 9
+    assert len({r["id"] for r in merged.records}) == 9
+    for store in (first, second):
+        for record in store.records:
+            mine = next(r for r in merged.records if r["id"] == f"{store.root.name}/{record['id']}")
+            assert mine["split"] == record["split"]
+            a, b = merged.load(mine), store.load(record)
+            assert np.array_equal(a.gray, b.gray) and np.array_equal(a.sparse, b.sparse)
+    info = json.loads((out / "dataset.json").read_text())
+    assert info["command"].startswith("sdc-data merge --out")
+    assert [m["seed"] for m in info["merged_from"]] == [0, 1]
+    assert [m["frames"] for m in info["merged_from"]] == [6, 3]
+
+
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("one", "at least two"),
+        ("same names", "folder names must differ"),
+        ("not empty", "not empty"),
+        ("no dataset", "no dataset.json"),
+    ],
+)
+def test_a_merge_that_cannot_be_made_is_refused_with_its_reason(
+    tiny_dataset, tmp_path, capsys, case, message
+):
+    out = tmp_path / "both"
+    twin = tmp_path / "elsewhere" / tiny_dataset.name
+    twin.parent.mkdir()
+    twin.symlink_to(tiny_dataset)
+    sources = {
+        "one": [tiny_dataset],
+        "same names": [tiny_dataset, twin],
+        "not empty": [tiny_dataset, tiny_dataset.parent],
+        "no dataset": [tiny_dataset, tmp_path],
+    }[case]
+    if case == "not empty":
+        out.mkdir()
+        (out / "notes.txt").write_text("mine")
+    assert data_main(["merge", "--out", str(out), *map(str, sources)]) != 0
+    assert message in capsys.readouterr().err
+    if case == "not empty":
+        assert [p.name for p in out.iterdir()] == ["notes.txt"]
+    else:
+        assert not out.exists()

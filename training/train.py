@@ -132,6 +132,20 @@ def _distributed() -> tuple[int, int, torch.device]:
     return rank, world, device
 
 
+#: What a checkpoint records of the dataset it was trained on: ``dataset.json``'s keys
+#: (``merged_from``: the sources of an ``sdc-data merge``).
+DATASET_KEYS = (
+    "command",
+    "seed",
+    "models",
+    "views",
+    "size",
+    "split_models",
+    "world",
+    "merged_from",
+)
+
+
 class Trainer:
     def __init__(self, config: TrainConfig):
         self.config = config
@@ -183,8 +197,7 @@ class Trainer:
             "hardware": hardware_description(self.device, self.world),
             "train_config": asdict(self.config),
             "dataset": {
-                k: self.store.info.get(k, "paper" if k == "world" else None)
-                for k in ("command", "seed", "models", "views", "size", "split_models", "world")
+                k: self.store.info.get(k, "paper" if k == "world" else None) for k in DATASET_KEYS
             }
             | {"frames": self.frames},
         }

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -14,7 +15,7 @@ import cv2
 import numpy as np
 
 from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
-from sdcnet.dataset_format import SampleStore
+from sdcnet.dataset_format import SampleStore, merge
 from sdcnet.meshes import read_mesh_folder
 from sdcnet.returns import returns_from_dense, write_returns_csv
 from sdcnet.training.data.conditions import WORLDS
@@ -103,6 +104,14 @@ def _describe(store: SampleStore, root: Path) -> str:
 
 def cmd_close(args: argparse.Namespace) -> int:
     print(f"{_describe(close(args.dataset), args.dataset)}: manifest written")
+    return 0
+
+
+def cmd_merge(args: argparse.Namespace) -> int:
+    sources = [str(d) for d in args.datasets]
+    command = shlex.join(["sdc-data", "merge", "--out", str(args.out), *sources])
+    store = merge(args.out, sources, command)
+    print(f"{_describe(store, args.out)}: the sources' files, left where they are")
     return 0
 
 
@@ -281,6 +290,15 @@ def parser() -> argparse.ArgumentParser:
     )
     c.add_argument("dataset", type=Path, help="dataset directory")
     c.set_defaults(func=cmd_close)
+
+    m = sub.add_parser(
+        "merge",
+        help="one dataset of several, to train on their frames together (your own spacecraft "
+        "beside ours): a manifest over the sources' files, nothing copied",
+    )
+    m.add_argument("datasets", type=Path, nargs="+", help="dataset directories (at least two)")
+    m.add_argument("--out", type=Path, required=True, help="the new dataset directory")
+    m.set_defaults(func=cmd_merge)
 
     e = sub.add_parser(
         "example", help="one frame of a mesh as a user sends it: NAME.png and NAME.returns.csv"
