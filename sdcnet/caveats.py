@@ -87,21 +87,29 @@ def mask_iou_estimate(probability: np.ndarray, mask: np.ndarray, crop_cut: bool 
     return estimate * CROP_CUT_IOU_FACTOR if crop_cut else estimate
 
 
-def reaches_crop_side(window: np.ndarray, region: Region, frame_shape: tuple[int, int]) -> bool:
-    """Whether the mask ``window`` (bool, the frame's mask on the network's crop ``region``)
-    has a pixel within ``CROP_EDGE_PX`` of a side of the crop that is not the border of the
-    frame (``frame_shape``). The crop is the returns' box with a margin (grown past a LIDAR
-    field's cut): a mask that fills it to a side is a spacecraft that goes on where no return
-    reached and the network did not look, so the mask holds nothing of it there."""
+def crop_sides_reached(
+    window: np.ndarray, region: Region, frame_shape: tuple[int, int]
+) -> tuple[bool, bool, bool, bool]:
+    """Which sides of the network's crop ``region`` (top, bottom, left, right) the mask
+    ``window`` (bool, the frame's mask on that crop) has a pixel within ``CROP_EDGE_PX`` of,
+    among those that are not the border of the frame (``frame_shape``). The crop is the
+    returns' box with a margin (grown past a LIDAR field's cut): a mask that fills it to a side
+    is a spacecraft that goes on where no return reached and the network did not look, so the
+    mask holds nothing of it there."""
     rows, cols = frame_shape
     edge = CROP_EDGE_PX
-    sides = (
-        (region.y0 > 0, window[:edge]),
-        (region.y1 < rows, window[-edge:]),
-        (region.x0 > 0, window[:, :edge]),
-        (region.x1 < cols, window[:, -edge:]),
+    return (
+        region.y0 > 0 and bool(window[:edge].any()),
+        region.y1 < rows and bool(window[-edge:].any()),
+        region.x0 > 0 and bool(window[:, :edge].any()),
+        region.x1 < cols and bool(window[:, -edge:].any()),
     )
-    return any(inside and bool(band.any()) for inside, band in sides)
+
+
+def reaches_crop_side(window: np.ndarray, region: Region, frame_shape: tuple[int, int]) -> bool:
+    """Whether the mask ``window`` reaches a side of its crop ``region`` inside the frame
+    (``crop_sides_reached``)."""
+    return any(crop_sides_reached(window, region, frame_shape))
 
 
 def frame_caveats(completion: Completion, returns: int) -> list[str]:

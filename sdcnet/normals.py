@@ -224,8 +224,14 @@ def normals_at(
 ) -> np.ndarray:
     """(N, 3) float32 unit normals, camera frame, facing the camera, of a completed frame at
     its pixels ``rows``, ``cols`` (frame pixels): each the normal of the working pixel it falls
-    in."""
-    return WorkingNormals.of(completion, intrinsics).at(rows, cols)
+    in, on the second look's grid beyond the first crop where the frame had one
+    (``Completion.beyond``)."""
+    normals = WorkingNormals.of(completion, intrinsics).at(rows, cols)
+    if completion.beyond is not None:
+        outside = ~completion.grid.region.holds(rows, cols)
+        beyond = WorkingNormals.of(completion.beyond, intrinsics)
+        normals[outside] = beyond.at(rows[outside], cols[outside])
+    return normals
 
 
 def cloud_normals(
@@ -240,9 +246,13 @@ def cloud_normals(
     those of the points ``back_project`` makes of them (pixels of depth > 0). Found
     ``band_pixels`` at a time, so that beside the answer a million points cost a band's
     indices, and taken straight into the answer (``np.take`` into its rows: 15 -> 7 ms for a
-    million points, against an indexed copy then a second one)."""
-    normals = WorkingNormals.of(completion, intrinsics)
+    million points, against an indexed copy then a second one). A frame with a second look
+    (``Completion.beyond``) takes ``normals_at``'s two grids, pixel by pixel."""
     pixels = on_lattice(pixels, stride)
+    if completion.beyond is not None:
+        rows, cols = np.nonzero(pixels)  # on the lattice: frame pixels ``stride`` times these
+        return normals_at(completion, rows * stride, cols * stride, intrinsics)
+    normals = WorkingNormals.of(completion, intrinsics)
     x0, y0, width, height = cv2.boundingRect(pixels.view(np.uint8))
     out = np.empty((int(np.count_nonzero(pixels)), 3), np.float32)
     step = max(1, band_pixels // max(width, 1))

@@ -25,7 +25,11 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    ``guided_probability``) and thresholded, the depth resampled without blending across
    depth edges (``resample_depth``; along them, on a shrunk crop, each frame pixel takes one
    side's depth by its own gray and the returns nearby: ``sdcnet.edge_paste``), within the
-   box holding the mask alone (``mask_box``). Outside the crop the answer is background.
+   box holding the mask alone (``mask_box``). Outside the crop the answer is background;
+6. **look again** where the mask reached a side of the crop inside the frame (the spacecraft
+   goes on where no return reached) and the frame's budget has room left after the first
+   look (``second_look_pixels``): the crop grown past those sides, on a coarser grid, answers
+   beyond the first crop (``with_second_look``).
 
 The model is any callable ``(gray, sparse, focal_px) -> (depth, probability[, sigma])`` on
 (B, 1, h, w) float32 arrays and a (B, 1, 1, 1) focal length: onnxruntime in the service,
@@ -36,13 +40,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from sdcnet.anchoring import Anchored, anchor_to_returns, anchored_sigma, spreading_sigma_px
-from sdcnet.caveats import mask_iou_estimate, reaches_crop_side
+from sdcnet.caveats import crop_sides_reached, mask_iou_estimate
 from sdcnet.edge_paste import paste_across_edges
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
 from sdcnet.returns import return_pixels, scatter_nearest
@@ -101,6 +105,16 @@ class Region:
         """This region, given from ``outer``'s top-left pixel, in the pixels ``outer`` is in."""
         dy, dx = outer.y0, outer.x0
         return Region(self.y0 + dy, self.y1 + dy, self.x0 + dx, self.x1 + dx)
+
+    def relative_to(self, outer: Region) -> Region:
+        """This region, in the pixels ``outer`` is in, given from ``outer``'s top-left pixel
+        (the inverse of ``within``)."""
+        dy, dx = outer.y0, outer.x0
+        return Region(self.y0 - dy, self.y1 - dy, self.x0 - dx, self.x1 - dx)
+
+    def holds(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """bool: whether each pixel (``rows``, ``cols``) lies inside this region."""
+        return (rows >= self.y0) & (rows < self.y1) & (cols >= self.x0) & (cols < self.x1)
 
 
 @dataclass(frozen=True)
@@ -485,10 +499,16 @@ class Completion:
     #: whether the mask reached a side of the crop inside the frame: the spacecraft goes on
     #: beyond what the network saw (``sdcnet.caveats.reaches_crop_side``)
     crop_cut: bool = False
+    #: the second look at a crop grown past the sides the mask reached (``with_second_look``),
+    #: whose working grid answers outside ``grid``'s crop (its frame-wide maps are this
+    #: answer's); None where there was none
+    beyond: Completion | None = None
 
     @property
     def region(self) -> Region:
-        return self.grid.region
+        """The crop the answer covers: the second look's where there is one, else the first's
+        (``grid``'s). Outside it the answer is background."""
+        return self.grid.region if self.beyond is None else self.beyond.region
 
     @property
     def frame_shape(self) -> tuple[int, int]:
@@ -631,13 +651,15 @@ class WorkingInputs:
     """One frame's crop on its working grid, as the network takes it: gray float32 (h, w) in
     [0, 1], sparse float32 (h, w) metres, the focal length in working pixels; and where the
     LIDAR's field cut the spacecraft (frame pixels; None where it did not, or where the crop
-    was given)."""
+    was given); the frame pixels of the returns' convex hull, as ``frame_work_pixels`` counts
+    them."""
 
     gray: np.ndarray
     sparse: np.ndarray
     focal_px: float
     grid: WorkingGrid
     cuts: FieldCuts | None = None
+    hull_pixels: float = 0.0
 
 
 def working_inputs(
@@ -677,6 +699,7 @@ def working_inputs(
         focal_px * grid.scale[1],
         grid,
         cuts,
+        hull_pixels,
     )
 
 
@@ -762,10 +785,36 @@ def complete(
     (``working_inputs``: at most ``work_pixels``, ``frame_share`` of the frame's budget),
     anchor its depth to the returns (``anchor_to_returns``) and its sigma with it
     (``anchored_sigma``), smooth the surface between the returns
-    (``smoothed_between_returns``), and paste the answer back at the frame's resolution. A
-    12-bit frame in a 16-bit image's low bits is read as in its top bits (``in_top_bits``)."""
+    (``smoothed_between_returns``), and paste the answer back at the frame's resolution
+    (``complete_on``). Where the mask reached a side of the crop inside the frame, and the
+    frame's budget has room left (``second_look_pixels``), look again at the crop grown past
+    those sides, on a coarser grid, and answer from that look beyond the first crop
+    (``with_second_look``). A 12-bit frame in a 16-bit image's low bits is read as in its top
+    bits (``in_top_bits``)."""
     gray = in_top_bits(gray)
     inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels, frame_share=frame_share)
+    first = complete_on(model, gray, sparse, inputs, threshold)
+    if not first.crop_cut:
+        return first
+    sides = crop_sides_reached(first.mask_crop, first.region, gray.shape)
+    grown = grown_past_sides(first.region, sides, gray.shape)
+    pixels = second_look_pixels(inputs, grown, work_pixels, frame_share)
+    if not pixels:
+        return first
+    again = working_inputs(gray, sparse, focal_px, stride, pixels, region=grown)
+    return with_second_look(first, complete_on(model, gray, sparse, again, threshold))
+
+
+def complete_on(
+    model: ModelFn,
+    gray: np.ndarray,
+    sparse: np.ndarray,
+    inputs: WorkingInputs,
+    threshold: float = 0.5,
+) -> Completion:
+    """One look of ``complete``: ``model`` run on a frame's ``inputs`` (``working_inputs``),
+    its answer anchored and pasted back at the frame's resolution (``gray`` and ``sparse``
+    as ``complete`` reads them)."""
     grid = inputs.grid
     depth_w, prob_w, sigma_w = run_model(model, inputs)
     kept = drop_specks(prob_w > threshold, inputs.sparse, RETURN_REACH_PX)
@@ -806,7 +855,7 @@ def complete(
     if sigma_w is not None:
         served_w = anchored_sigma(sigma_w, anchored, mask_w)
         sigma = on_mask(resample_depth(served_w, shape, math.inf, box), mask, at)
-    crop_cut = reaches_crop_side(mask_crop, grid.region, gray.shape)
+    crop_cut = any(crop_sides_reached(mask_crop, grid.region, gray.shape))
     return Completion(
         depth,
         mask,
@@ -820,4 +869,71 @@ def complete(
         inputs.cuts,
         mask_iou_estimate(prob_w, mask_w, crop_cut),
         crop_cut,
+    )
+
+
+#: A second look (``complete``) has at most this share of the model's ``work_pixels`` ...
+SECOND_LOOK_SHARE = 0.5
+#: ... and none is taken with less than this share left in the frame's budget.
+MIN_SECOND_LOOK_SHARE = 0.1
+
+
+def grown_past_sides(
+    region: Region, sides: tuple[bool, bool, bool, bool], frame_shape: tuple[int, int]
+) -> Region:
+    """``region`` grown by its own height or width past each of its ``sides`` (top, bottom,
+    left, right) that the mask reached (``sdcnet.caveats.crop_sides_reached``), within the
+    frame (``frame_shape``)."""
+    (H, W), (h, w) = frame_shape, region.shape
+    top, bottom, left, right = sides
+    return Region(
+        max(0, region.y0 - h) if top else region.y0,
+        min(H, region.y1 + h) if bottom else region.y1,
+        max(0, region.x0 - w) if left else region.x0,
+        min(W, region.x1 + w) if right else region.x1,
+    )
+
+
+def second_look_pixels(
+    first: WorkingInputs, grown: Region, work_pixels: int, frame_share: float = 1.0
+) -> int:
+    """The working pixels a second look at the crop ``grown`` gets: what the frame's budget
+    (``frame_work_pixels``' terms) leaves after the first look (``first``: its working pixels,
+    its crop's and its hull's work) and the grown crop's work at the frame's resolution, at
+    most ``SECOND_LOOK_SHARE`` of ``work_pixels`` (``working_inputs`` may give it fewer, as
+    it does any crop whose own work is large); 0 (no second look) below
+    ``MIN_SECOND_LOOK_SHARE`` of it. A frame whose first look took its whole budget (a large
+    crop, many points) gets none: the cost of every frame stays within its budget."""
+    first_pixels = first.grid.shape[0] * first.grid.shape[1]
+    crops = (
+        first.grid.region.shape[0] * first.grid.region.shape[1] + grown.shape[0] * grown.shape[1]
+    )
+    spent = first_pixels + CROP_PIXEL_COST * crops + HULL_PIXEL_COST * first.hull_pixels
+    left = min(FRAME_BUDGET * frame_share * work_pixels - spent, SECOND_LOOK_SHARE * work_pixels)
+    return int(left) if left >= MIN_SECOND_LOOK_SHARE * work_pixels else 0
+
+
+def with_second_look(first: Completion, second: Completion) -> Completion:
+    """``first``'s answer within its crop and ``second``'s (a look at a crop grown past the
+    sides ``first``'s mask reached, on a coarser grid) beyond it: the spacecraft past the
+    first crop's sides, at the first look's resolution where it had one. On the robustness
+    suite's frames whose mask reached a side of its crop (8 %), IOU flash +1.4 points,
+    docking-2048 +1.1, docking +0.7, `any` +0.4, the rest within 0.1 (docs/development.md,
+    "Measurements"). ``second``'s frame-wide maps become the answer's."""
+    inner = first.region.slices
+    depth, mask, sigma = second.depth, second.mask, second.sigma
+    depth[inner], mask[inner] = first.depth[inner], first.mask[inner]
+    if sigma is not None:
+        sigma[inner] = first.sigma[inner]
+    probability = second.probability_crop
+    probability[first.region.relative_to(second.region).slices] = first.probability_crop
+    return replace(
+        first,
+        depth=depth,
+        mask=mask,
+        sigma=sigma,
+        probability_crop=probability,
+        mask_iou_estimate=second.mask_iou_estimate,
+        crop_cut=second.crop_cut,
+        beyond=second,
     )

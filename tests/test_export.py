@@ -162,10 +162,15 @@ def test_fp16_and_int8_variants_of_a_tiny_model_run(frames, tmp_path):
     }
     gray, sparse, fx = frames[0]
     reference = complete(OnnxModel(path, provider="cpu").run, gray, sparse, fx, stride)
+    # on the first look's crop: the untrained network's mask reaches its sides, and beyond
+    # them each answers from a second look as coarse as the frame's budget left
+    first = np.zeros(reference.mask.shape, bool)
+    first[reference.grid.region.slices] = True
     for name, variant in variants.items():
         answer = complete(OnnxModel(variant, provider="cpu").run, gray, sparse, fx, stride)
-        both = answer.mask & reference.mask
-        assert both.sum() > 0.5 * reference.mask.sum(), name
+        assert answer.grid.region == reference.grid.region, name
+        both = answer.mask & reference.mask & first
+        assert both.sum() > 0.5 * (reference.mask & first).sum(), name
         error = np.abs(answer.depth[both] - reference.depth[both]) / reference.depth[both]
         assert np.percentile(error, 99) < 0.02, name
 

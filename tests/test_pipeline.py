@@ -4,14 +4,19 @@ import cv2
 import numpy as np
 import pytest
 
+from sdcnet.camera import Intrinsics
+from sdcnet.normals import cloud_normals, normal_map
 from sdcnet.pipeline import (
     FIELD_EDGE_GROWTH,
     MAX_UPSAMPLE,
+    MIN_SECOND_LOOK_SHARE,
     MIN_WORK_SHARE,
     RETURN_REACH_PX,
+    SECOND_LOOK_SHARE,
     WORK_PIXELS,
     Region,
     complete,
+    complete_on,
     drop_specks,
     frame_work_pixels,
     guide_gain,
@@ -25,9 +30,11 @@ from sdcnet.pipeline import (
     resample_sparse,
     return_spacing,
     row_ends,
+    second_look_pixels,
     source_indices,
     vouched_mask,
     working_grid,
+    working_inputs,
 )
 
 FX = 7939.2
@@ -168,6 +175,70 @@ def test_a_frame_gets_fewer_working_pixels_as_its_own_work_grows_down_to_a_floor
     whole = frame_work_pixels(WORK_PIXELS, 2048 * 2048, 2048 * 2048)
     assert whole == int(MIN_WORK_SHARE * WORK_PIXELS)
     assert frame_work_pixels(2 * WORK_PIXELS, 700 * 700, 300 * 300) == 2 * WORK_PIXELS
+
+
+def boom_past_the_returns() -> tuple[np.ndarray, np.ndarray]:
+    """A bright boom across a 1024 px frame, rows 480-540, whose returns (a narrow LIDAR's,
+    at no straight field edge: a ragged patch) lie on its middle alone, columns 470-560."""
+    gray = np.zeros((1024, 1024), np.uint8)
+    gray[480:540, :] = 200
+    sparse = np.zeros(gray.shape, np.float32)
+    rng = np.random.default_rng(3)
+    rows, cols = rng.integers(482, 538, 300), rng.integers(470, 560, 300)
+    sparse[rows, cols] = 60.0
+    return gray, sparse
+
+
+def test_a_mask_that_reaches_its_crop_side_gets_a_second_look_beyond_it():
+    gray, sparse = boom_past_the_returns()
+    calls = []
+    result = complete(bright_model(calls), gray, sparse, FX, stride=64)
+    first, grown = result.grid.region, result.region
+    assert len(calls) == 2 and result.beyond is not None
+    assert grown.x0 < first.x0 - 100 and first.x1 + 100 < grown.x1
+    assert grown.y0 <= first.y0 and first.y1 <= grown.y1
+    boom = gray == 200
+    seen, looked = np.zeros_like(boom), np.zeros_like(boom)
+    seen[first.slices], looked[grown.slices] = True, True
+    # the boom beyond the first crop is answered, the first look's answer kept inside it;
+    # it still goes on past the second crop, and the answer says so
+    assert result.mask[boom & looked & ~seen].mean() > 0.95 and result.mask[boom & seen].all()
+    assert not result.mask[~looked].any() and result.crop_cut
+    alone = complete_on(bright_model([]), gray, sparse, working_inputs(gray, sparse, FX, 64))
+    np.testing.assert_array_equal(result.mask[first.slices], alone.mask[first.slices])
+    np.testing.assert_array_equal(result.depth[first.slices], alone.depth[first.slices])
+    assert not result.mask[~boom].any()
+    assert (result.depth[result.mask] > 0).all() and not result.depth[~result.mask].any()
+    assert np.array_equal(result.probability > 0.5, result.mask)
+    # every point's normal from the grid that saw it, the cloud's as the map's
+    K = Intrinsics(fx=FX, fy=FX, cx=511.5, cy=511.5, width=1024, height=1024)
+    normals = normal_map(result, K)[result.mask]
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+    assert (normals[:, 2] < 0).all()  # facing the camera
+    for stride in (1, 3):
+        lattice = result.mask[::stride, ::stride]
+        np.testing.assert_array_equal(
+            cloud_normals(result, result.mask, K, stride=stride),
+            normal_map(result, K)[::stride, ::stride][lattice],
+        )
+
+
+def test_a_second_look_takes_only_what_the_frames_budget_left():
+    gray, sparse = boom_past_the_returns()
+    inputs = working_inputs(gray, sparse, FX, 64)
+    grown = Region(0, 1024, 0, 1024)
+    left = second_look_pixels(inputs, grown, WORK_PIXELS)
+    assert MIN_SECOND_LOOK_SHARE * WORK_PIXELS <= left <= SECOND_LOOK_SHARE * WORK_PIXELS
+    assert second_look_pixels(inputs, grown, WORK_PIXELS, frame_share=0.75) < left
+    # a 2048 px frame its returns fill took its whole budget at the first look: none left
+    big_gray, big_sparse = frame(2048, box=(0, 2048, 0, 2048))
+    full = working_inputs(big_gray, big_sparse, 2000.0, 64)
+    assert second_look_pixels(full, Region(0, 2048, 0, 2048), WORK_PIXELS) == 0
+    gray[:, :] = 0  # a boom no longer than its returns: one look
+    gray[480:540, 470:560] = 200
+    calls = []
+    assert complete(bright_model(calls), gray, sparse, FX, stride=64).beyond is None
+    assert len(calls) == 1
 
 
 def test_a_small_crop_is_enlarged_up_to_the_limit_and_answered_at_its_own_size():

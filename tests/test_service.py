@@ -406,8 +406,9 @@ def test_a_cloud_holds_at_most_max_points_on_every_kth_pixel_and_says_so(url, mo
 def test_every_answer_says_when_its_mask_rests_on_few_returns_or_is_in_doubt(client):
     """The caveats (``sdcnet.caveats``) and the mask's estimated IOU in the JSON answer, the
     npz's meta.json and the PLY's header: ``few_returns`` when most of the test frame's
-    returns are left out (and ``crop_cut``: the ten left lie along the craft's top, whose
-    rest, in sight, runs past the crop around them); ``mask_uncertain`` with the estimate
+    returns are left out (the ten left lie along the craft's top, whose rest, in sight, runs
+    past the crop around them: a second look beyond it answers it, and no ``crop_cut`` is
+    left to say); ``mask_uncertain`` with the estimate
     below its floor (the tiny model's probability is the gray image: its outline is in doubt
     where the image is dim)."""
     whole = post(client, frame_files()).json()
@@ -416,7 +417,7 @@ def test_every_answer_says_when_its_mask_rests_on_few_returns_or_is_in_doubt(cli
     rows, cols = np.nonzero(sparse)
     sparse[rows[FEW_RETURNS // 2 :], cols[FEW_RETURNS // 2 :]] = 0
     few = post(client, frame_files(sparse=npy_bytes(sparse))).json()
-    expected = ["few_returns", "crop_cut", *uncertain(few["mask_iou_estimate"])]
+    expected = ["few_returns", *uncertain(few["mask_iou_estimate"])]
     assert few["caveats"] == expected
     npz = post(client, frame_files(sparse=npy_bytes(sparse)), format="npz")
     with np.load(io.BytesIO(npz.content), allow_pickle=False) as archive:
