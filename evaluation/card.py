@@ -121,12 +121,24 @@ def _data_lines(runs: list[dict]) -> list[str]:
         data = run.get("dataset", {})
         seen.setdefault(data.get("command", "?"), data)
     return [
-        f"- Data: `{command}` (seed {data.get('seed')}; {data.get('models')} models x "
-        f"{data.get('views')} views; models per split {data.get('split_models')}"
+        f"- Data: `{command}` ({_made_of(data)}"
         + (f"; frames used {data['frames']}" if "frames" in data else "")
         + "). Test models are never seen in training."
         for command, data in seen.items()
     ]
+
+
+def _made_of(data: dict) -> str:
+    """What a dataset was rendered with, or for one of several (``sdc-data merge``) each
+    source's command and frames."""
+    if data.get("merged_from"):
+        return "of " + ", ".join(
+            f"`{source['command']}` ({source['frames']} frames)" for source in data["merged_from"]
+        )
+    return (
+        f"seed {data.get('seed')}; {data.get('models')} models x {data.get('views')} views; "
+        f"models per split {data.get('split_models')}"
+    )
 
 
 def model_card(

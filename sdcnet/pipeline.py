@@ -899,16 +899,17 @@ def second_look_pixels(
 ) -> int:
     """The working pixels a second look at the crop ``grown`` gets: what the frame's budget
     (``frame_work_pixels``' terms) leaves after the first look (``first``: its working pixels,
-    its crop's and its hull's work) and the grown crop's work at the frame's resolution, at
+    its crop's and its hull's work), the grown crop's work at the frame's resolution and the
+    points the answer may gain beyond the first crop (its added area, as hull pixels), at
     most ``SECOND_LOOK_SHARE`` of ``work_pixels`` (``working_inputs`` may give it fewer, as
     it does any crop whose own work is large); 0 (no second look) below
     ``MIN_SECOND_LOOK_SHARE`` of it. A frame whose first look took its whole budget (a large
     crop, many points) gets none: the cost of every frame stays within its budget."""
     first_pixels = first.grid.shape[0] * first.grid.shape[1]
-    crops = (
-        first.grid.region.shape[0] * first.grid.region.shape[1] + grown.shape[0] * grown.shape[1]
-    )
-    spent = first_pixels + CROP_PIXEL_COST * crops + HULL_PIXEL_COST * first.hull_pixels
+    (h, w), (gh, gw) = first.grid.region.shape, grown.shape
+    crop_pixels, grown_pixels = h * w, gh * gw
+    points = first.hull_pixels + grown_pixels - crop_pixels
+    spent = first_pixels + CROP_PIXEL_COST * (crop_pixels + grown_pixels) + HULL_PIXEL_COST * points
     left = min(FRAME_BUDGET * frame_share * work_pixels - spent, SECOND_LOOK_SHARE * work_pixels)
     return int(left) if left >= MIN_SECOND_LOOK_SHARE * work_pixels else 0
 

@@ -19,6 +19,7 @@ from sdcnet.pipeline import (
     complete_on,
     drop_specks,
     frame_work_pixels,
+    grown_past_sides,
     guide_gain,
     guided_probability,
     mask_box,
@@ -226,10 +227,12 @@ def test_a_mask_that_reaches_its_crop_side_gets_a_second_look_beyond_it():
 def test_a_second_look_takes_only_what_the_frames_budget_left():
     gray, sparse = boom_past_the_returns()
     inputs = working_inputs(gray, sparse, FX, 64)
-    grown = Region(0, 1024, 0, 1024)
+    grown = grown_past_sides(inputs.grid.region, (False, False, True, True), gray.shape)
     left = second_look_pixels(inputs, grown, WORK_PIXELS)
     assert MIN_SECOND_LOOK_SHARE * WORK_PIXELS <= left <= SECOND_LOOK_SHARE * WORK_PIXELS
     assert second_look_pixels(inputs, grown, WORK_PIXELS, frame_share=0.75) < left
+    # the whole frame: its crop's work and the points it may add leave no room
+    assert second_look_pixels(inputs, Region(0, 1024, 0, 1024), WORK_PIXELS) == 0
     # a 2048 px frame its returns fill took its whole budget at the first look: none left
     big_gray, big_sparse = frame(2048, box=(0, 2048, 0, 2048))
     full = working_inputs(big_gray, big_sparse, 2000.0, 64)

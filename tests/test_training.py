@@ -26,6 +26,8 @@ from sdcnet.training.checkpoint import (
 )
 from sdcnet.training.cli import main as train_main
 from sdcnet.training.cli import parser as train_parser
+from sdcnet.training.data.cli import main as data_main
+from sdcnet.training.data.generate import GenerateConfig, generate
 from sdcnet.training.dataset import resample_truth
 from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
 from sdcnet.training.train import TrainConfig, config_from_preset
@@ -220,6 +222,24 @@ def test_average_writes_the_mean_of_fine_tuned_weights_and_the_card_lists_their_
     assert train_main(["average", "--checkpoints", str(soup), *refused]) == 2
     assert "at least two" in capsys.readouterr().err
     assert not (tmp_path / "refused.pt").exists()
+
+
+def test_a_run_on_merged_datasets_names_each_source_in_its_card(tiny_dataset, tmp_path):
+    other = tmp_path / "other"
+    generate(GenerateConfig(models=3, views=1, size=128, seed=1), other, progress=False)
+    merged = tmp_path / "both"
+    assert data_main(["merge", "--out", str(merged), str(tiny_dataset), str(other)]) == 0
+    out = tmp_path / "r"
+    fit = ["fit", "--data", str(merged), "--out", str(out), "--preset", "smoke"]
+    assert train_main([*fit, "--fsnet-epochs", "1", "--epochs", "0"]) == 0
+    _, state = load_checkpoint(out / "best_stage1.pt")
+    assert state["dataset"]["command"].startswith("sdc-data merge --out")
+    assert [m["frames"] for m in state["dataset"]["merged_from"]] == [6, 3]
+    card = tmp_path / "card.md"
+    assert eval_main(["card", "--checkpoint", str(out / "best_stage1.pt"), "--out", str(card)]) == 0
+    (data,) = [line for line in card.read_text().splitlines() if line.startswith("- Data:")]
+    assert "--seed 0` (6 frames)" in data and "--seed 1` (3 frames)" in data
+    assert "None" not in data
 
 
 def test_init_weights_of_another_variant_is_refused(run, tiny_dataset, tmp_path, capsys):
