@@ -918,10 +918,10 @@ def with_second_look(first: Completion, second: Completion) -> Completion:
     """``first``'s answer within its crop and ``second``'s (a look at a crop grown past the
     sides ``first``'s mask reached, on a coarser grid) beyond it: the spacecraft past the
     first crop's sides, at the first look's resolution where it had one. On the robustness
-    suite, IOU flash +1.1 points (10 of its 52 frames looked again), docking +0.8, `any`
-    +0.4, wide-multibeam +0.1, the rest unchanged; 8 frames better by more than a point, 2
-    worse (docs/development.md, "Measurements"). ``second``'s frame-wide maps become the
-    answer's."""
+    suite with the twelfth model, IOU flash +1.0 points (9 of its 52 frames looked again),
+    `any` +0.4, wide-multibeam +0.1, the rest unchanged; 6 frames better by more than a
+    point, 3 worse (docs/development.md, "Measurements"). ``second``'s frame-wide maps become
+    the answer's."""
     inner = first.region.slices
     depth, mask, sigma = second.depth, second.mask, second.sigma
     depth[inner], mask[inner] = first.depth[inner], first.mask[inner]
