@@ -46,7 +46,7 @@ import cv2
 import numpy as np
 
 from sdcnet.anchoring import Anchored, anchor_to_returns, anchored_sigma, spreading_sigma_px
-from sdcnet.caveats import crop_sides_reached, mask_iou_estimate
+from sdcnet.caveats import crop_sides_reached, mask_iou_estimate, reaches_crop_side
 from sdcnet.edge_paste import paste_across_edges
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
 from sdcnet.returns import return_pixels, scatter_nearest
@@ -855,7 +855,7 @@ def complete_on(
     if sigma_w is not None:
         served_w = anchored_sigma(sigma_w, anchored, mask_w)
         sigma = on_mask(resample_depth(served_w, shape, math.inf, box), mask, at)
-    crop_cut = any(crop_sides_reached(mask_crop, grid.region, gray.shape))
+    crop_cut = reaches_crop_side(mask_crop, grid.region, gray.shape)
     return Completion(
         depth,
         mask,
