@@ -234,6 +234,13 @@ def _grow(lo: int, hi: int, length: int, size: int) -> tuple[int, int]:
     return lo, lo + length
 
 
+def own_work(crop_pixels: float, hull_pixels: float) -> float:
+    """A frame's work at its own resolution, in working pixels' time: ``CROP_PIXEL_COST`` for
+    each of its crop's ``crop_pixels`` and ``HULL_PIXEL_COST`` for each of the ``hull_pixels``
+    where its points will be."""
+    return CROP_PIXEL_COST * crop_pixels + HULL_PIXEL_COST * hull_pixels
+
+
 def frame_work_pixels(
     work_pixels: int, crop_pixels: int, hull_pixels: float, frame_share: float = 1.0
 ) -> int:
@@ -249,7 +256,7 @@ def frame_work_pixels(
     ``work_pixels``: on a CPU slower than the one the budget was timed on
     (``sdcnet.frame_budget``), a frame whose own work is small still gets all the network's
     pixels while the frames of large crops and many points get fewer."""
-    own = CROP_PIXEL_COST * crop_pixels + HULL_PIXEL_COST * hull_pixels
+    own = own_work(crop_pixels, hull_pixels)
     floor = MIN_WORK_SHARE * frame_share * work_pixels
     return int(min(work_pixels, max(floor, FRAME_BUDGET * frame_share * work_pixels - own)))
 
@@ -691,7 +698,7 @@ def working_inputs(
     )
     grid = working_grid(region, gray.shape, stride, budget)
     g = grid.region
-    inside = (rows >= g.y0) & (rows < g.y1) & (cols >= g.x0) & (cols < g.x1)
+    inside = g.holds(rows, cols)
     rows, cols = rows[inside], cols[inside]
     return WorkingInputs(
         normalise_gray(resample_image(gray[g.slices], grid.shape)),
@@ -909,7 +916,7 @@ def second_look_pixels(
     (h, w), (gh, gw) = first.grid.region.shape, grown.shape
     crop_pixels, grown_pixels = h * w, gh * gw
     points = first.hull_pixels + grown_pixels - crop_pixels
-    spent = first_pixels + CROP_PIXEL_COST * (crop_pixels + grown_pixels) + HULL_PIXEL_COST * points
+    spent = first_pixels + own_work(crop_pixels + grown_pixels, points)
     left = min(FRAME_BUDGET * frame_share * work_pixels - spent, SECOND_LOOK_SHARE * work_pixels)
     return int(left) if left >= MIN_SECOND_LOOK_SHARE * work_pixels else 0
 
