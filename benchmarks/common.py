@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.training.train import cpu_name
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks"
@@ -54,6 +55,15 @@ def peak_gflops(cores: int | None = None) -> tuple[float, str]:
     ghz = (max(mhz) / 1000) if mhz else 3.0
     peak = 32 * ghz * cores
     return peak, f"32 FP32 FLOP/cycle/core (2 x 256-bit FMA) x {ghz:.2f} GHz x {cores} cores"
+
+
+def set_records(spec: str, limit: int | None) -> tuple[SampleStore, list[dict]]:
+    """The store and records of one ``DIR`` or ``DIR:SPLIT``."""
+    root, _, split = spec.partition(":")
+    store = SampleStore(root)
+    if split:
+        return store, store.split(split, limit)
+    return store, evenly_spread(store.records, limit) if limit else store.records
 
 
 def write_markdown(name: str, title: str, body: str) -> Path:

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.stats import spearmanr
 from tqdm import tqdm
 
-from benchmarks.common import DOCS, write_markdown
+from benchmarks.common import DOCS, set_records, write_markdown
 from sdcnet.caveats import (
     CAVEATS,
     CROP_CUT_IOU_FACTOR,
@@ -29,7 +29,6 @@ from sdcnet.caveats import (
     UNCERTAIN_MASK_IOU,
     frame_caveats,
 )
-from sdcnet.dataset_format import SampleStore, evenly_spread
 from sdcnet.evaluation.scoring import network
 from sdcnet.metrics import frame_metrics
 from sdcnet.pipeline import return_pixels
@@ -39,15 +38,6 @@ from sdcnet.runtime.onnx import OnnxModel
 POOR_IOU = 0.7
 #: Edges of the estimate's bins in the calibration table.
 BINS = (0.0, 0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0)
-
-
-def set_records(spec: str, limit: int | None) -> tuple[SampleStore, list[dict]]:
-    """The store and records of one ``DIR`` or ``DIR:SPLIT``."""
-    root, _, split = spec.partition(":")
-    store = SampleStore(root)
-    if split:
-        return store, store.split(split, limit)
-    return store, evenly_spread(store.records, limit) if limit else store.records
 
 
 def frame_rows(model: OnnxModel, spec: str, limit: int | None) -> list[dict]:

@@ -110,32 +110,50 @@ def markdown_table(
 EDGE_BANDS_PX = (1.5, 3.0)  # "touching the outline" (8-connected), "2nd or 3rd pixel from it"
 
 
-def mask_error_bands(pred_mask: np.ndarray, gt_depth: np.ndarray) -> dict[str, float]:
-    """Where a mask's errors lie, as shares of the image's union |A ∪ Â| (so that the three
-    ``miss_*`` terms add up to 1 - IOU), by each pixel's distance in pixels to the nearest
+def mask_error_bands(
+    pred_mask: np.ndarray, gt_depth: np.ndarray, seen: np.ndarray | None = None
+) -> dict[str, float]:
+    """Where a mask's errors lie, as shares of the image's union |A ∪ Â| (so that
+    ``missed_unseen`` and the three ``miss_*`` terms add up to 1 - IOU). ``missed_unseen``: the
+    true foreground outside ``seen`` (the pixels the network was shown; the whole frame if
+    None), which no mask could hold. The rest by each pixel's distance in pixels to the nearest
     pixel of the other class in the ground truth: ``edge`` <= 1.5 px (it touches the outline),
     ``near`` <= 3 px, ``far`` beyond. ``fp_edge`` and ``fn_edge`` split the edge share into
-    false foreground and missed foreground; ``IOU_off_edge`` is the IOU with the edge pixels left
-    out of intersection and union. NaN where the union is empty."""
+    false foreground and missed foreground, ``fp_far`` is the false foreground of the far
+    share; ``IOU_off_edge`` is the IOU with the edge pixels left out of intersection and union.
+    NaN where the union is empty."""
     A = gt_depth > 0
     P = pred_mask.astype(bool)
     union = int((A | P).sum())
     if union == 0 or A.all():
         return dict.fromkeys(
-            ("miss_edge", "miss_near", "miss_far", "fp_edge", "fn_edge", "IOU_off_edge"), np.nan
+            (
+                "missed_unseen",
+                "miss_edge",
+                "miss_near",
+                "miss_far",
+                "fp_edge",
+                "fn_edge",
+                "fp_far",
+                "IOU_off_edge",
+            ),
+            np.nan,
         )
     inside = cv2.distanceTransform(A.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     outside = cv2.distanceTransform((~A).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     distance = np.where(A, inside, outside)
-    wrong = A ^ P
+    unseen = A & ~seen if seen is not None else np.zeros_like(A)
+    wrong = (A ^ P) & ~unseen
     edge, near = distance <= EDGE_BANDS_PX[0], distance <= EDGE_BANDS_PX[1]
     off_union = int(((A | P) & ~edge).sum())
     return {
+        "missed_unseen": float(unseen.sum() / union),
         "miss_edge": float((wrong & edge).sum() / union),
         "miss_near": float((wrong & near & ~edge).sum() / union),
         "miss_far": float((wrong & ~near).sum() / union),
         "fp_edge": float((wrong & edge & P).sum() / union),
         "fn_edge": float((wrong & edge & A).sum() / union),
+        "fp_far": float((wrong & ~near & P).sum() / union),
         "IOU_off_edge": float((A & P & ~edge).sum() / off_union) if off_union else np.nan,
     }
 

@@ -65,7 +65,27 @@ def test_mask_error_bands_split_the_iou_deficit_by_distance_to_the_outline():
     assert bands["miss_edge"] + bands["miss_near"] + bands["miss_far"] == pytest.approx(1 - iou)
     # off the edge only the hole is wrong: 8 x 8 interior minus 1, over the 64 off-edge pixels
     assert bands["IOU_off_edge"] == pytest.approx(63 / 64)
+    assert bands["missed_unseen"] == 0 and bands["fp_far"] == 0
     assert np.isnan(mask_error_bands(np.zeros((4, 4), bool), np.zeros((4, 4)))["miss_edge"])
+
+
+def test_mask_error_bands_count_the_foreground_the_network_never_saw_apart():
+    gt = np.zeros((20, 20), np.float32)
+    gt[5:15, 5:15] = 100.0
+    seen = np.zeros((20, 20), bool)
+    seen[:, :12] = True  # the crop ends 3 columns before the spacecraft does
+    pred = (gt > 0) & seen
+    pred[1, 1] = True  # a false speck far from the spacecraft
+    bands = mask_error_bands(pred, gt, seen)
+    union = 101
+    assert bands["missed_unseen"] == pytest.approx(30 / union)  # rows 5:15, columns 12:15
+    assert bands["miss_edge"] == 0 and bands["miss_near"] == 0
+    assert bands["miss_far"] == pytest.approx(1 / union) and bands["fp_far"] == bands["miss_far"]
+    iou = frame_metrics(np.where(pred, 100.0, 0.0), pred, gt)["IOU"]
+    shares = ("missed_unseen", "miss_edge", "miss_near", "miss_far")
+    assert sum(bands[k] for k in shares) == pytest.approx(1 - iou)
+    # without ``seen`` the same columns are missed at and away from the outline instead
+    assert mask_error_bands(pred, gt)["missed_unseen"] == 0
 
 
 PAPER_K = PAPER_CAMERA.intrinsics()
