@@ -148,6 +148,12 @@ FITS64 := $(VENV)/bin/sdc-train fit --data data/hard-s64 --preset $(PRESET) --io
 	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
 	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 1 \
 	--init-weights runs/eleventh/shipped.pt --fsnet-epochs 8
+# the thirteenth: the same from the twelfth, with frames of the wide-multibeam, any and sun-moon
+# worlds alone beside the twelfth's
+FITS65 := $(VENV)/bin/sdc-train fit --data data/hard-s65 --preset $(PRESET) --iou-loss 1 \
+	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
+	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 1 \
+	--init-weights runs/twelfth/shipped.pt --fsnet-epochs 8
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
@@ -226,6 +232,20 @@ model: $(STAMP)
 	$(VENV)/bin/sdc-data merge --out data/hard-s64 data/mixed-s63 data/flash-s64 data/docking-s64
 	$(FITS64) --out runs/s64a --lr 3e-4 --seed 64
 	$(VENV)/bin/sdc-train average --checkpoints runs/eleventh/shipped.pt runs/s64a/best_stage1.pt \
+		--out runs/twelfth/shipped.pt
+	# wide-multibeam's and sun-moon's 686 frames were all rendered (15 and 13 min, the second
+	# after the first); `any`'s generation was stopped at 30 min with 583
+	timeout 1800 $(VENV)/bin/sdc-data generate --out data/any-s65 --models 800 --views 1 \
+		--size 1024 --world any --seed 65 --styles ours pbr --only-splits train val --workers 1 \
+		--quiet & \
+	for w in wide-multibeam sun-moon; do $(VENV)/bin/sdc-data generate --out data/$$w-s65 \
+		--models 800 --views 1 --size 1024 --world $$w --seed 65 --styles ours pbr \
+		--only-splits train val --workers 1 --quiet; done; wait
+	$(VENV)/bin/sdc-data close data/any-s65
+	$(VENV)/bin/sdc-data merge --out data/hard-s65 data/mixed-s63 data/flash-s64 \
+		data/docking-s64 data/wide-multibeam-s65 data/any-s65 data/sun-moon-s65
+	$(FITS65) --out runs/s65a --lr 3e-4 --seed 65
+	$(VENV)/bin/sdc-train average --checkpoints runs/twelfth/shipped.pt runs/s65a/best_stage1.pt \
 		--out models/sdcnet.pt
 	$(MAKE) reports
 
