@@ -26,7 +26,8 @@ import numpy as np
 from tqdm import tqdm
 
 from benchmarks.common import DOCS, set_records, write_markdown
-from sdcnet.evaluation.scoring import network
+from sdcnet.dataset_format import Sample
+from sdcnet.evaluation.scoring import FrameAnswer, network
 from sdcnet.metrics import mask_error_bands, mask_iou
 from sdcnet.pipeline import return_pixels
 from sdcnet.runtime.onnx import OnnxModel
@@ -43,7 +44,7 @@ COLUMNS = (
 )
 
 
-def frame_row(sample, answer, has_returns: bool) -> dict:
+def frame_row(sample: Sample, answer: FrameAnswer, has_returns: bool) -> dict:
     """One frame's IOU and error shares. The pipeline answers a frame without returns with an
     empty mask over the whole frame; counted here as unseen, since the network had nothing to
     look at."""
