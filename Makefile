@@ -132,28 +132,21 @@ FITS7 := $(VENV)/bin/sdc-train fit --data data/mixed-s7 --preset $(PRESET) --iou
 	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
 	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 7 \
 	--init-weights runs/eighth/shipped.pt --fsnet-epochs 10
+# the 2-core fine-tune of FSNet from the tenth model on: 8 epochs of 4000 crops, half of them
+# holding the whole target; each model's own data and starting weights below
+FSNET_FINETUNE := $(VENV)/bin/sdc-train fit --preset $(PRESET) --iou-loss 1 --iou-over tile \
+	--fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 --batch-size 16 \
+	--samples-per-epoch 4000 --val-samples 150 --workers 1 --fsnet-epochs 8
 # the tenth: the ninth's recipe on 2 cores (one fine-tune of the ninth, averaged with it)
-FITS10 := $(VENV)/bin/sdc-train fit --data data/mixed-s10 --preset $(PRESET) --iou-loss 1 \
-	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
-	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 1 \
-	--init-weights runs/ninth/shipped.pt --fsnet-epochs 8
+FITS10 := $(FSNET_FINETUNE) --data data/mixed-s10 --init-weights runs/ninth/shipped.pt
 # the eleventh: the same recipe on frames in both render styles, from the tenth
-FITS62 := $(VENV)/bin/sdc-train fit --data data/mixed-s62 --preset $(PRESET) --iou-loss 1 \
-	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
-	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 1 \
-	--init-weights runs/tenth/shipped.pt --fsnet-epochs 8
+FITS62 := $(FSNET_FINETUNE) --data data/mixed-s62 --init-weights runs/tenth/shipped.pt
 # the twelfth: the same from the eleventh on mixed frames beside frames of the flash and docking
 # worlds alone (`sdc-data merge`)
-FITS64 := $(VENV)/bin/sdc-train fit --data data/hard-s64 --preset $(PRESET) --iou-loss 1 \
-	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
-	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 1 \
-	--init-weights runs/eleventh/shipped.pt --fsnet-epochs 8
+FITS64 := $(FSNET_FINETUNE) --data data/hard-s64 --init-weights runs/eleventh/shipped.pt
 # the thirteenth: the same from the twelfth, with frames of the wide-multibeam, any and sun-moon
 # worlds alone beside the twelfth's
-FITS65 := $(VENV)/bin/sdc-train fit --data data/hard-s65 --preset $(PRESET) --iou-loss 1 \
-	--iou-over tile --fsnet-growth 2 --fsnet-context --epochs 0 --whole-target-share 0.5 \
-	--batch-size 16 --samples-per-epoch 4000 --val-samples 150 --workers 1 \
-	--init-weights runs/twelfth/shipped.pt --fsnet-epochs 8
+FITS65 := $(FSNET_FINETUNE) --data data/hard-s65 --init-weights runs/twelfth/shipped.pt
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
