@@ -15,7 +15,7 @@ import numpy as np
 
 from sdcnet.evaluation.robustness import table_of
 from sdcnet.metrics import depth_table, markdown_table, uncertainty_table
-from sdcnet.training.checkpoint import load_checkpoint
+from sdcnet.training.checkpoint import load_checkpoint, provenance_key
 from sdcnet.training.model.sdcnet import SDCNet
 
 
@@ -23,12 +23,6 @@ def _parent(run: dict) -> dict | None:
     """The checkpoint a run started from (``--init-weights``, ``--init-segmentation`` or
     ``--warm-start``), or None."""
     return run.get("parent") or run.get("segmentation_parent") or run.get("warm_start_parent")
-
-
-def _key(run: dict) -> str:
-    """One text per run, so that runs two averaged checkpoints share are listed once (their
-    histories hold NaN, which never equals itself)."""
-    return json.dumps({k: v for k, v in run.items() if k != "file"}, sort_keys=True, default=str)
 
 
 def lineage(state: dict) -> list[dict]:
@@ -39,7 +33,7 @@ def lineage(state: dict) -> list[dict]:
         runs: dict[str, dict] = {}
         for member in state["averaged"]:
             for run in lineage(member):
-                runs.setdefault(_key(run), run)
+                runs.setdefault(provenance_key(run), run)
         return list(runs.values())
     parent = _parent(state)
     return [*(lineage(parent) if parent is not None else []), state]
@@ -47,7 +41,7 @@ def lineage(state: dict) -> list[dict]:
 
 def _run_line(run: dict, number: dict[str, int]) -> str:
     """One training run: command, hardware, the run it started from, epochs per stage and wall
-    time. ``number``: each run's number in the card by ``_key``."""
+    time. ``number``: each run's number in the card by ``provenance_key``."""
     history = run.get("history", [])
     minutes = sum(r.get("seconds", 0) for r in history) / 60
     epochs = [sum(1 for r in history if r["stage"] == s) for s in (1, 2)]
@@ -61,14 +55,14 @@ def _run_line(run: dict, number: dict[str, int]) -> str:
 
 
 def _weights_of(state: dict, number: dict[str, int]) -> str:
-    """Whose weights a checkpoint holds, by the card's run numbers (``number``, by ``_key``):
-    ``run 3``, for an average ``the mean of runs 3, 4, 5``, and for an average of averages
-    ``the mean of (the mean of runs 3, 4, 5) and run 6``."""
+    """Whose weights a checkpoint holds, by the card's run numbers (``number``, by
+    ``provenance_key``): ``run 3``, for an average ``the mean of runs 3, 4, 5``, and for an
+    average of averages ``the mean of (the mean of runs 3, 4, 5) and run 6``."""
     if "averaged" not in state:
-        return f"run {number[_key(state)]}"
+        return f"run {number[provenance_key(state)]}"
     members = state["averaged"]
     if not any("averaged" in m for m in members):
-        return "the mean of runs " + ", ".join(str(number[_key(m)]) for m in members)
+        return "the mean of runs " + ", ".join(str(number[provenance_key(m)]) for m in members)
     named = [
         f"({_weights_of(m, number)})" if "averaged" in m else _weights_of(m, number)
         for m in members
@@ -151,7 +145,7 @@ def model_card(
 ) -> str:
     """Markdown model card of a trained checkpoint and its evaluation reports."""
     runs = lineage(state)
-    number = {_key(run): i + 1 for i, run in enumerate(runs)}
+    number = {provenance_key(run): i + 1 for i, run in enumerate(runs)}
     data = runs[-1].get("dataset", {})
     minutes = sum(r.get("seconds", 0) for run in runs for r in run.get("history", [])) / 60
     params = sum(p.numel() for p in model.parameters())

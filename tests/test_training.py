@@ -16,11 +16,13 @@ import pytest
 import torch
 
 from sdcnet.dataset_format import SampleStore
-from sdcnet.evaluation.card import model_card
+from sdcnet.evaluation.card import lineage, model_card
 from sdcnet.evaluation.cli import main as eval_main
 from sdcnet.training.checkpoint import (
     PROVENANCE,
+    average_checkpoints,
     load_checkpoint,
+    read_checkpoint,
     save_checkpoint,
     transplant_weights,
 )
@@ -222,6 +224,37 @@ def test_average_writes_the_mean_of_fine_tuned_weights_and_the_card_lists_their_
     assert train_main(["average", "--checkpoints", str(soup), *refused]) == 2
     assert "at least two" in capsys.readouterr().err
     assert not (tmp_path / "refused.pt").exists()
+
+
+def test_rounds_of_soups_store_each_run_once(tmp_path):
+    """The shipped model's recipe, round after round: average the model with a fine-tune of
+    it. The fine-tune's parent is the model, a member of the same soup; stored once, the file
+    grows by about one run's record a round instead of doubling."""
+    model = build_model("sdcnet")
+
+    def fine_tune(number: int, parent: dict | None) -> dict:
+        history = [
+            {"stage": 1, "epoch": e, "IOU": 0.8 + e / 1000, "MAEI": math.nan} for e in range(40)
+        ]
+        record = {"train_config": {"command": f"run {number}"}, "history": history}
+        if parent is not None:
+            record["parent"] = {k: parent[k] for k in PROVENANCE if k in parent}
+        return record
+
+    shipped = tmp_path / "round0.pt"
+    save_checkpoint(shipped, model, **fine_tune(0, None))
+    sizes = []
+    for number in range(1, 7):
+        tuned = tmp_path / f"tuned{number}.pt"
+        save_checkpoint(tuned, model, **fine_tune(number, read_checkpoint(shipped)))
+        soup = tmp_path / f"round{number}.pt"
+        average_checkpoints([shipped, tuned], soup)
+        shipped = soup
+        sizes.append(soup.stat().st_size)
+    growth = np.diff(sizes)
+    assert growth.max() < 1.5 * growth.min(), sizes
+    runs = lineage(read_checkpoint(shipped))
+    assert [r["train_config"]["command"] for r in runs] == [f"run {n}" for n in range(7)]
 
 
 def test_a_run_on_merged_datasets_names_each_source_in_its_card(tiny_dataset, tmp_path):

@@ -7,6 +7,7 @@ missing, corrupt or foreign file is one clear ``ValueError`` / ``FileNotFoundErr
 
 from __future__ import annotations
 
+import json
 import pickle
 import zipfile
 from collections.abc import Sequence
@@ -28,6 +29,26 @@ PROVENANCE = (
     "segmentation_parent",
     "averaged",
 )
+
+
+def provenance_key(record: dict) -> str:
+    """One text per provenance record, its ``file`` left out: two records of one run compare
+    equal by it (their histories hold NaN, which never equals itself)."""
+    return json.dumps({k: v for k, v in record.items() if k != "file"}, sort_keys=True, default=str)
+
+
+def _shared(tree: object, seen: dict[str, object]) -> object:
+    """``tree`` (plain data) with each set of equal dicts and lists made one object, bottom up,
+    so that ``torch.save`` (pickle, which writes an object once and refers to it after) stores
+    it once. A soup of a model and a fine-tune of it holds that model's record twice (a member,
+    and the fine-tune's parent): without this the file doubled with every such round."""
+    if isinstance(tree, dict):
+        tree = {k: _shared(v, seen) for k, v in tree.items()}
+    elif isinstance(tree, list):
+        tree = [_shared(v, seen) for v in tree]
+    else:
+        return tree
+    return seen.setdefault(json.dumps(tree, sort_keys=True, default=str), tree)
 
 
 def save_checkpoint(path: Path, model: SDCNet, **extra) -> None:
@@ -174,7 +195,7 @@ def average_checkpoints(sources: Sequence[str | Path], target: str | Path) -> No
         {k: state[k] for k in PROVENANCE if k in state} | {"file": str(path)}
         for path, state in zip(sources, states, strict=True)
     ]
-    save_checkpoint(Path(target), model, averaged=members)
+    save_checkpoint(Path(target), model, averaged=_shared(members, {}))
 
 
 def ship_checkpoint(source: str | Path, target: str | Path, zero: Sequence[str] = ()) -> None:
