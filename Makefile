@@ -147,6 +147,9 @@ FITS64 := $(FSNET_FINETUNE) --data data/hard-s64 --init-weights runs/eleventh/sh
 # the thirteenth: the same from the twelfth, with frames of the wide-multibeam, any and sun-moon
 # worlds alone beside the twelfth's
 FITS65 := $(FSNET_FINETUNE) --data data/hard-s65 --init-weights runs/twelfth/shipped.pt
+# the fourteenth: the same from the thirteenth, with frames of the flash, docking and earth
+# worlds drawn apart again beside the thirteenth's
+FITS66 := $(FSNET_FINETUNE) --data data/hard-s66 --init-weights runs/thirteenth/shipped.pt
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
@@ -239,6 +242,21 @@ model: $(STAMP)
 		data/docking-s64 data/wide-multibeam-s65 data/any-s65 data/sun-moon-s65
 	$(FITS65) --out runs/s65a --lr 3e-4 --seed 65
 	$(VENV)/bin/sdc-train average --checkpoints runs/twelfth/shipped.pt runs/s65a/best_stage1.pt \
+		--out runs/thirteenth/shipped.pt
+	# flash's and earth's 686 frames were all rendered (13 and 12 min, earth's after flash's);
+	# docking's generation was stopped at 30 min with 658
+	timeout 1800 $(VENV)/bin/sdc-data generate --out data/docking-s66 --models 800 --views 1 \
+		--size 1024 --world docking --seed 66 --styles ours pbr --only-splits train val \
+		--workers 1 --quiet & \
+	for w in flash earth; do $(VENV)/bin/sdc-data generate --out data/$$w-s66 \
+		--models 800 --views 1 --size 1024 --world $$w --seed 66 --styles ours pbr \
+		--only-splits train val --workers 1 --quiet; done; wait
+	$(VENV)/bin/sdc-data close data/docking-s66
+	$(VENV)/bin/sdc-data merge --out data/hard-s66 data/mixed-s63 data/flash-s64 \
+		data/docking-s64 data/wide-multibeam-s65 data/any-s65 data/sun-moon-s65 \
+		data/flash-s66 data/docking-s66 data/earth-s66
+	$(FITS66) --out runs/s66a --lr 3e-4 --seed 66
+	$(VENV)/bin/sdc-train average --checkpoints runs/thirteenth/shipped.pt runs/s66a/best_stage1.pt \
 		--out models/sdcnet.pt
 	$(MAKE) reports
 
