@@ -65,8 +65,8 @@ def set_summary(rows: list[dict]) -> dict:
     iou = np.array([r["iou"] for r in rows])
     estimate = np.array([r["estimate"] for r in rows])
     poor = iou < POOR_IOU
-    before = np.array([marked_before_crop_cut(r) for r in rows])
-    flagged = np.array([bool(r["caveats"]) for r in rows])
+    before = np.array([marked_before_crop_cut(r) for r in rows], dtype=bool)
+    flagged = np.array([bool(r["caveats"]) for r in rows], dtype=bool)
     return {
         "frames": len(rows),
         "iou": float(iou.mean()),
@@ -119,8 +119,8 @@ def per_caveat(rows: list[dict]) -> list[dict]:
     poor = iou < POOR_IOU
     out = []
     for code in CAVEATS:
-        marked = np.array([code in r["caveats"] for r in rows])
-        alone = np.array([r["caveats"] == [code] for r in rows])
+        marked = np.array([code in r["caveats"] for r in rows], dtype=bool)
+        alone = np.array([r["caveats"] == [code] for r in rows], dtype=bool)
         out.append(
             {
                 "code": code,
@@ -139,7 +139,7 @@ def fitted_exponent(rows: list[dict]) -> float:
     squares, to 0.01): how ``MASK_IOU_EXPONENT`` was chosen, on the validation frames. The
     frames that carry ``crop_cut`` count with their estimate's factor taken out."""
     estimate = np.array([r["estimate"] for r in rows])
-    cut = np.array(["crop_cut" in r["caveats"] for r in rows])
+    cut = np.array(["crop_cut" in r["caveats"] for r in rows], dtype=bool)
     raw = np.where(cut, estimate / CROP_CUT_IOU_FACTOR, estimate) ** (1 / MASK_IOU_EXPONENT)
     iou = np.array([r["iou"] for r in rows])
     exponents = np.arange(0.5, 4.0, 0.01)
