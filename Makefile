@@ -150,6 +150,10 @@ FITS65 := $(FSNET_FINETUNE) --data data/hard-s65 --init-weights runs/twelfth/shi
 # the fourteenth: the same from the thirteenth, with frames of the flash, docking and earth
 # worlds drawn apart again beside the thirteenth's
 FITS66 := $(FSNET_FINETUNE) --data data/hard-s66 --init-weights runs/thirteenth/shipped.pt
+# the frames of one world alone for those fine-tunes: one view of each of 800 new models, both
+# render styles; each round gives the world, the seed and the folder
+WORLD_FRAMES := $(VENV)/bin/sdc-data generate --models 800 --views 1 --size 1024 \
+	--styles ours pbr --only-splits train val --workers 1 --quiet
 model: $(STAMP)
 	$(VENV)/bin/sdc-data generate --out data/mixed --models 126 --views 40 --world mixed --seed 0
 	mkdir -p runs/previous && git show $(PREVIOUS):models/sdcnet.pt > runs/previous/sdcnet.pt
@@ -220,9 +224,8 @@ model: $(STAMP)
 		--size 1024 --world mixed --seed 63 --styles ours pbr --only-splits train val \
 		--workers 2 --quiet
 	$(VENV)/bin/sdc-data close data/mixed-s63
-	for w in flash docking; do timeout 1800 $(VENV)/bin/sdc-data generate --out data/$$w-s64 \
-		--models 800 --views 1 --size 1024 --world $$w --seed 64 --styles ours pbr \
-		--only-splits train val --workers 1 --quiet & done; wait
+	for w in flash docking; do timeout 1800 $(WORLD_FRAMES) --out data/$$w-s64 --world $$w \
+		--seed 64 & done; wait
 	$(VENV)/bin/sdc-data close data/flash-s64
 	$(VENV)/bin/sdc-data close data/docking-s64
 	$(VENV)/bin/sdc-data merge --out data/hard-s64 data/mixed-s63 data/flash-s64 data/docking-s64
@@ -231,12 +234,9 @@ model: $(STAMP)
 		--out runs/twelfth/shipped.pt
 	# wide-multibeam's and sun-moon's 686 frames were all rendered (15 and 13 min, the second
 	# after the first); `any`'s generation was stopped at 30 min with 583
-	timeout 1800 $(VENV)/bin/sdc-data generate --out data/any-s65 --models 800 --views 1 \
-		--size 1024 --world any --seed 65 --styles ours pbr --only-splits train val --workers 1 \
-		--quiet & \
-	for w in wide-multibeam sun-moon; do $(VENV)/bin/sdc-data generate --out data/$$w-s65 \
-		--models 800 --views 1 --size 1024 --world $$w --seed 65 --styles ours pbr \
-		--only-splits train val --workers 1 --quiet; done; wait
+	timeout 1800 $(WORLD_FRAMES) --out data/any-s65 --world any --seed 65 & \
+	for w in wide-multibeam sun-moon; do $(WORLD_FRAMES) --out data/$$w-s65 --world $$w \
+		--seed 65; done; wait
 	$(VENV)/bin/sdc-data close data/any-s65
 	$(VENV)/bin/sdc-data merge --out data/hard-s65 data/mixed-s63 data/flash-s64 \
 		data/docking-s64 data/wide-multibeam-s65 data/any-s65 data/sun-moon-s65
@@ -245,12 +245,9 @@ model: $(STAMP)
 		--out runs/thirteenth/shipped.pt
 	# flash's and earth's 686 frames were all rendered (13 and 12 min, earth's after flash's);
 	# docking's generation was stopped at 30 min with 658
-	timeout 1800 $(VENV)/bin/sdc-data generate --out data/docking-s66 --models 800 --views 1 \
-		--size 1024 --world docking --seed 66 --styles ours pbr --only-splits train val \
-		--workers 1 --quiet & \
-	for w in flash earth; do $(VENV)/bin/sdc-data generate --out data/$$w-s66 \
-		--models 800 --views 1 --size 1024 --world $$w --seed 66 --styles ours pbr \
-		--only-splits train val --workers 1 --quiet; done; wait
+	timeout 1800 $(WORLD_FRAMES) --out data/docking-s66 --world docking --seed 66 & \
+	for w in flash earth; do $(WORLD_FRAMES) --out data/$$w-s66 --world $$w --seed 66; done; \
+	wait
 	$(VENV)/bin/sdc-data close data/docking-s66
 	$(VENV)/bin/sdc-data merge --out data/hard-s66 data/mixed-s63 data/flash-s64 \
 		data/docking-s64 data/wide-multibeam-s65 data/any-s65 data/sun-moon-s65 \
