@@ -18,6 +18,7 @@ from sdcnet.cli import FILE_AND_VALUE_ERRORS, add_debug_flag, run_command
 from sdcnet.dataset_format import SampleStore
 from sdcnet.export.onnx_export import (
     MAX_DEPTH_ERROR_M,
+    MAX_SIGMA_ERROR,
     MIN_MASK_AGREEMENT,
     Frame,
     export_checked,
@@ -90,8 +91,9 @@ def export(args: argparse.Namespace) -> int:
     cases = export_checked(model, args.out, metadata, parity_frames(args.parity_seed))
     print(
         f"{version}: parity, onnxruntime CPU vs PyTorch (bounds: depth <= "
-        f"{MAX_DEPTH_ERROR_M * 1000:.1f} mm on the foreground, mask agreement >= "
-        f"{100 * MIN_MASK_AGREEMENT:.2f} %):"
+        f"{MAX_DEPTH_ERROR_M * 1000:.1f} mm on the foreground, sigma <= "
+        f"{100 * MAX_SIGMA_ERROR:.1f} % where both masks agree around the pixel, mask agreement "
+        f">= {100 * MIN_MASK_AGREEMENT:.2f} %):"
     )
     for c in cases:
         print(

@@ -11,13 +11,18 @@ import torch
 from sdcnet.export import onnx_export
 from sdcnet.export.cli import main as export_main
 from sdcnet.export.cli import parity_frames
-from sdcnet.export.onnx_export import export_onnx, network_metadata_props, parity_check
+from sdcnet.export.onnx_export import (
+    compare_outputs,
+    export_onnx,
+    network_metadata_props,
+    parity_check,
+)
 from sdcnet.export.variants import float_nodes, to_fp16, to_int8
 from sdcnet.pipeline import complete
 from sdcnet.runtime.interface import ModelLoadError
 from sdcnet.runtime.onnx import OnnxModel
 from sdcnet.training.checkpoint import save_checkpoint
-from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model
+from sdcnet.training.model.sdcnet import VARIANTS, SDCNet, build_model, local_depth_spread
 
 
 @pytest.fixture(scope="module")
@@ -93,6 +98,36 @@ def test_parity_rejects_a_model_whose_mask_differs(exported, frames):
     (case,) = parity_check(perturbed(model, mask_bias=-6.0), path, frames, (256,), (1,))
     assert not case.passed and case.mask_agreement == 0.0  # PyTorch: all background now
     assert case.compared_px == 256**2  # onnxruntime's foreground, compared all the same
+
+
+def outputs_with_mask(depth: np.ndarray, prob: np.ndarray) -> tuple:
+    """(depth, prob, sigma) as the network forms them: a constant scale head's 0.05 m and
+    the depth-edge term (weight 0.5) over ``prob``'s foreground, added in quadrature."""
+    spread = local_depth_spread(torch.from_numpy(depth), torch.from_numpy(prob) > 0.5).numpy()
+    return depth, prob, np.sqrt(0.05**2 + (0.5 * spread) ** 2)
+
+
+def test_parity_tolerates_a_probability_rounded_across_the_threshold_but_no_sigma_beside():
+    """One pixel at 0.5 within a float's last bits: its decision flips between runtimes and the
+    sigma of its neighbours' depth-edge term with it (the stop-67 soup's export failed on
+    exactly that); sigma anywhere else must still match."""
+    rng = np.random.default_rng(0)
+    depth = (10.0 + rng.normal(0, 0.2, (1, 1, 128, 128))).astype(np.float32)
+    prob = np.full((1, 1, 128, 128), 0.9, np.float32)
+    prob[..., 30, 30] = 0.4999996
+    flipped = prob.copy()
+    flipped[..., 30, 30] = 0.5000008
+    reference, candidate = outputs_with_mask(depth, prob), outputs_with_mask(depth, flipped)
+    beside = np.abs(candidate[2] - reference[2]) / reference[2]
+    assert beside[..., 28:33, 28:33].max() > 1e-3  # what the old check compared and failed on
+    case = compare_outputs(128, 1, reference, candidate)
+    assert case.passed and case.mask_agreement == 1 - 1 / 128**2
+    assert case.compared_px == 128**2 and case.max_sigma_error == 0.0
+
+    off = candidate[2].copy()
+    off[..., 30, 33] *= 1.01  # one pixel past the window's reach
+    case = compare_outputs(128, 1, reference, (candidate[0], candidate[1], off))
+    assert not case.passed and case.max_sigma_error == pytest.approx(0.01, rel=1e-4)
 
 
 def test_sdc_export_replaces_its_output_only_after_the_parity_check(tmp_path, capsys, monkeypatch):

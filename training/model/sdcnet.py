@@ -148,8 +148,13 @@ def normalise_gray(gray: torch.Tensor, sparse: torch.Tensor) -> torch.Tensor:
     return (gray * gain).clamp_max(GRAY_CEILING)
 
 
+#: Side (pixels) of the window over which sigma's depth-edge term reads the predicted depth and
+#: mask: a pixel's sigma depends on the foreground decisions within half of it.
+SPREAD_WINDOW = 5
+
+
 def local_depth_spread(
-    depth: torch.Tensor, foreground: torch.Tensor, size: int = 5
+    depth: torch.Tensor, foreground: torch.Tensor, size: int = SPREAD_WINDOW
 ) -> torch.Tensor:
     """(B, 1, H, W) metres: max - min of ``depth`` over the foreground pixels of the ``size`` x
     ``size`` window around each foreground pixel; 0 off the foreground."""
