@@ -809,7 +809,7 @@ def complete(
     if not pixels:
         return first
     again = working_inputs(gray, sparse, focal_px, stride, pixels, region=grown)
-    return with_second_look(first, complete_on(model, gray, sparse, again, threshold))
+    return with_second_look(first, complete_on(model, gray, sparse, again, threshold), sparse)
 
 
 def complete_on(
@@ -921,14 +921,15 @@ def second_look_pixels(
     return int(left) if left >= MIN_SECOND_LOOK_SHARE * work_pixels else 0
 
 
-def with_second_look(first: Completion, second: Completion) -> Completion:
+def with_second_look(first: Completion, second: Completion, sparse: np.ndarray) -> Completion:
     """``first``'s answer within its crop and ``second``'s (a look at a crop grown past the
     sides ``first``'s mask reached, on a coarser grid) beyond it: the spacecraft past the
     first crop's sides, at the first look's resolution where it had one. On the robustness
     suite with the twelfth model, IOU flash +1.0 points (9 of its 52 frames looked again),
     `any` +0.4, wide-multibeam +0.1, the rest unchanged; 6 frames better by more than a
     point, 3 worse (docs/development.md, "Measurements"). ``second``'s frame-wide maps become
-    the answer's."""
+    the answer's, without the parts beyond the first crop that the join cut off from every
+    return of ``sparse`` (``cut_off_beyond``)."""
     inner = first.region.slices
     depth, mask, sigma = second.depth, second.mask, second.sigma
     depth[inner], mask[inner] = first.depth[inner], first.mask[inner]
@@ -936,6 +937,11 @@ def with_second_look(first: Completion, second: Completion) -> Completion:
         sigma[inner] = first.sigma[inner]
     probability = second.probability_crop
     probability[first.region.relative_to(second.region).slices] = first.probability_crop
+    rows, cols = cut_off_beyond(mask, first.region, sparse)
+    for values in (mask, depth, sigma):
+        if values is not None:
+            values[rows, cols] = 0
+    probability[rows - second.region.y0, cols - second.region.x0] = 0.0
     return replace(
         first,
         depth=depth,
@@ -946,3 +952,36 @@ def with_second_look(first: Completion, second: Completion) -> Completion:
         crop_cut=second.crop_cut,
         beyond=second,
     )
+
+
+def cut_off_beyond(
+    mask: np.ndarray, inner: Region, sparse: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels (rows, cols) of ``mask`` (bool (H, W): a first look's answer inside
+    ``inner``, its crop, and a second look's beyond it) beyond ``inner`` in parts joined to
+    neither the first look's answer nor a return of ``sparse`` (metres, (H, W)) within
+    ``RETURN_REACH_PX``. The second look vouched for its parts through its own mask inside
+    ``inner`` too; where the first look's finer answer there does not join a part to the rest,
+    nothing vouches for it any more: a fragment of a bright edge beside the crop's side, a
+    patch of glow (on the robustness suite's docking frames with the fifteenth model, 9 of its
+    26 false specks; docs/development.md, "Measurements"). Of ``inner`` only its edge, one
+    pixel wide, is labelled: the first look's answer there joins a part to the rest."""
+    window = mask_box(mask, RETURN_REACH_PX)
+    part = mask[window.slices].copy()
+    vouchers = cv2.compare(sparse[window.slices], 0, cv2.CMP_GT)
+    y0, x0 = max(inner.y0, window.y0), max(inner.x0, window.x0)
+    y1, x1 = min(inner.y1, window.y1), min(inner.x1, window.x1)
+    edge = Region(y0, max(y0, y1), x0, max(x0, x1)).relative_to(window)
+    on_edge = np.zeros(part.shape, bool)
+    on_edge[edge.slices] = part[edge.slices]
+    core = Region(
+        edge.y0 + 1, max(edge.y0 + 1, edge.y1 - 1), edge.x0 + 1, max(edge.x0 + 1, edge.x1 - 1)
+    )
+    part[core.slices] = False
+    on_edge[core.slices] = False
+    vouchers[on_edge] = 255
+    kept = drop_specks(part, vouchers, RETURN_REACH_PX)
+    if kept is part:
+        return np.empty(0, np.intp), np.empty(0, np.intp)
+    rows, cols = np.nonzero(part & ~kept)
+    return rows + window.y0, cols + window.x0

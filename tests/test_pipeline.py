@@ -244,6 +244,41 @@ def test_a_second_look_takes_only_what_the_frames_budget_left():
     assert len(calls) == 1
 
 
+def test_a_second_looks_part_joined_only_through_the_first_crop_is_vouched_for_again():
+    """The second look (a coarser grid) joins a dim patch to the boom through pixels inside
+    the first crop that the first look (a stricter model here) left off its mask; pasted
+    beside the first look's answer there, the patch beyond the first crop is joined to nothing
+    the returns vouch for, and is dropped with its depth."""
+    gray, sparse = boom_past_the_returns()
+    first = working_inputs(gray, sparse, FX, 64).grid.region
+    x = first.x1 - 40  # a dim bridge down from the boom, past the first crop's bottom ...
+    gray[540:580, x : x + 12] = 60
+    gray[576:590, x : first.x1 + 60] = 60  # ... to a patch that goes on past its side
+    dim = gray == 60
+    dim[first.slices] = False  # the dim pixels the second look alone answers for
+
+    def stricter_first(calls: list):
+        def run(gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray):
+            calls.append(gray.shape)
+            cut = 0.5 if len(calls) == 1 else 0.1  # the second look marks the dim pixels too
+            return np.full_like(gray, 100.0), (gray > cut).astype(np.float32)
+
+        return run
+
+    result = complete(stricter_first([]), gray, sparse, FX, stride=64)
+    assert result.beyond is not None and result.grid.region == first
+    assert result.region.holds(*np.nonzero(dim)).all()
+    assert not result.mask[dim].any() and not result.depth[dim].any()
+    boom_beyond = np.zeros(gray.shape, bool)
+    boom_beyond[480:540, first.x1 : result.region.x1] = True
+    assert result.mask[boom_beyond].mean() > 0.95, "the boom beyond, joined to the returns, kept"
+    # the second look alone marked the patch: through the bridge, it was joined to the boom
+    h, w = result.beyond.grid.shape
+    again = working_inputs(gray, sparse, FX, 64, h * w, region=result.region)
+    alone = complete_on(stricter_first([None]), gray, sparse, again)
+    assert alone.mask[dim].mean() > 0.9
+
+
 def test_a_small_crop_is_enlarged_up_to_the_limit_and_answered_at_its_own_size():
     gray, sparse = frame(1024, spacing=(6, 6), box=(500, 530, 500, 540))
     calls = []
