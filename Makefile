@@ -100,9 +100,13 @@ docker-check: $(STAMP)
 ## 1e-4, each stopped by its 270 s slot after 8 of its 10 epochs (`sdc-train average`). The
 ## tenth is the mean of the ninth and one fine-tune of its FSNet on 2 cores (8
 ## epochs at lr 3e-4, 18 min) on 2058 frames of 686 new models (data/mixed-s10, seed 10;
-## 10 min to render), its depth networks and sigma the seventh's. The eleventh (shipped) is
-## the tenth's recipe once more, on 2058 new frames drawn in both render styles (data/mixed-s62,
-## seed 62, --styles ours pbr; 59 min to render beside other work), averaged with the tenth.
+## 10 min to render), its depth networks and sigma the seventh's. The eleventh is the tenth's
+## recipe once more, on 2058 new frames drawn in both render styles (data/mixed-s62, seed 62,
+## --styles ours pbr; 59 min to render beside other work), averaged with the tenth. The twelfth
+## to the fourteenth repeat it with frames of the weakest worlds drawn apart beside the earlier
+## rounds' (the comments below); the fifteenth (shipped) is the mean of the fourteenth, counted
+## twice, and two fine-tunes of it: on new frames of the flash, docking, wide-multibeam and
+## `any` worlds (seed 67), and on those with the earth and sun-moon worlds' beside them.
 .PHONY: model
 PRESET ?= cpu
 PREVIOUS ?= e6a386e
@@ -150,6 +154,8 @@ FITS65 := $(FSNET_FINETUNE) --data data/hard-s65 --init-weights runs/twelfth/shi
 # the fourteenth: the same from the thirteenth, with frames of the flash, docking and earth
 # worlds drawn apart again beside the thirteenth's
 FITS66 := $(FSNET_FINETUNE) --data data/hard-s66 --init-weights runs/thirteenth/shipped.pt
+# the fifteenth: two fine-tunes of the fourteenth on new frames of six worlds drawn apart
+FITS67 := $(FSNET_FINETUNE) --init-weights runs/fourteenth/shipped.pt --lr 3e-4 --seed 67
 # the frames of one world alone for those fine-tunes: one view of each of 800 new models, both
 # render styles; each round gives the world, the seed and the folder
 WORLD_FRAMES := $(VENV)/bin/sdc-data generate --models 800 --views 1 --size 1024 \
@@ -255,7 +261,28 @@ model: $(STAMP)
 	$(FITS66) --out runs/s66a --lr 3e-4 --seed 66
 	# the fine-tune counted twice: its weight two thirds of the mean
 	$(VENV)/bin/sdc-train average --checkpoints runs/thirteenth/shipped.pt runs/s66a/best_stage1.pt \
-		runs/s66a/best_stage1.pt --out models/sdcnet.pt
+		runs/s66a/best_stage1.pt --out runs/fourteenth/shipped.pt
+	# flash's and wide-multibeam's 686 frames were all rendered (17 min each, side by side
+	# beside other work); docking's generation was stopped at 30 min with 494, `any`'s at 20 min
+	# with 244; earth's and sun-moon's 686 each took 18 and 16 min side by side
+	for w in flash wide-multibeam; do $(WORLD_FRAMES) --out data/$$w-s67 --world $$w \
+		--seed 67 & done; wait
+	-timeout 1800 $(WORLD_FRAMES) --out data/docking-s67 --world docking --seed 67
+	-timeout 1200 $(WORLD_FRAMES) --out data/any-s67 --world any --seed 67
+	$(VENV)/bin/sdc-data close data/docking-s67
+	$(VENV)/bin/sdc-data close data/any-s67
+	for w in earth sun-moon; do $(WORLD_FRAMES) --out data/$$w-s67 --world $$w \
+		--seed 67 & done; wait
+	$(VENV)/bin/sdc-data merge --out data/hard-s67 data/flash-s67 data/docking-s67 \
+		data/wide-multibeam-s67 data/any-s67
+	$(VENV)/bin/sdc-data merge --out data/hard2-s67 data/flash-s67 data/docking-s67 \
+		data/wide-multibeam-s67 data/any-s67 data/earth-s67 data/sun-moon-s67
+	$(FITS67) --data data/hard-s67 --out runs/s67a
+	$(FITS67) --data data/hard2-s67 --out runs/s67b
+	# the fourteenth counted twice: half the mean, each fine-tune a quarter
+	$(VENV)/bin/sdc-train average --checkpoints runs/fourteenth/shipped.pt \
+		runs/fourteenth/shipped.pt runs/s67a/best_stage1.pt runs/s67b/best_stage1.pt \
+		--out models/sdcnet.pt
 	$(MAKE) reports
 
 ## reports: evaluate the shipped checkpoint beside the previous model (git $(PREVIOUS), run by its
