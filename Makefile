@@ -262,12 +262,12 @@ model: $(STAMP)
 	# the fine-tune counted twice: its weight two thirds of the mean
 	$(VENV)/bin/sdc-train average --checkpoints runs/thirteenth/shipped.pt runs/s66a/best_stage1.pt \
 		runs/s66a/best_stage1.pt --out runs/fourteenth/shipped.pt
-	# flash's and wide-multibeam's 686 frames were all rendered (17 min each, side by side
-	# beside other work); docking's generation was stopped at 30 min with 494, `any`'s at 20 min
-	# with 244; earth's and sun-moon's 686 each took 18 and 16 min side by side
+	# flash's and wide-multibeam's 686 frames were all rendered (17 and 13 min, the second after
+	# the first, beside docking's, stopped at 30 min with 494); `any`'s generation was stopped at
+	# 20 min with 244; earth's and sun-moon's 686 each took 18 and 17 min side by side
+	timeout 1800 $(WORLD_FRAMES) --out data/docking-s67 --world docking --seed 67 & \
 	for w in flash wide-multibeam; do $(WORLD_FRAMES) --out data/$$w-s67 --world $$w \
-		--seed 67 & done; wait
-	-timeout 1800 $(WORLD_FRAMES) --out data/docking-s67 --world docking --seed 67
+		--seed 67; done; wait
 	-timeout 1200 $(WORLD_FRAMES) --out data/any-s67 --world any --seed 67
 	$(VENV)/bin/sdc-data close data/docking-s67
 	$(VENV)/bin/sdc-data close data/any-s67

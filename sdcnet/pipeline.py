@@ -562,7 +562,8 @@ def drop_specks(mask: np.ndarray, sparse: np.ndarray, reach_px: int) -> np.ndarr
     the beams all missed and the mask shows detached from the rest (a thin boom between scan
     lines) goes with them: on the robustness suite that cost 0.4 points of IOU at most and cut
     the false specks per frame by two thirds or more in every condition (docs/development.md,
-    "Measurements").
+    "Measurements"). ``sparse``: the returns' depths (metres, 0 = none), or any map positive
+    where a pixel vouches (``cut_off_beyond`` adds a first look's answer to the returns).
     """
     if mask.size == 0:
         return mask
