@@ -22,7 +22,8 @@ The service, the evaluation, the training tiles and the benchmarks all go throug
    mask grown past the LIDAR field's edge into what the image shows beyond it
    (``grown_past_field``), the probability resampled (onto a shrunk crop guided by the
    frame's own gray image:
-   ``guided_probability``) and thresholded, the depth resampled without blending across
+   ``guided_probability``) and thresholded, the returns a pixel off the mask joined to it
+   (``join_returns_beside``), the depth resampled without blending across
    depth edges (``resample_depth``; along them, on a shrunk crop, each frame pixel takes one
    side's depth by its own gray and the returns nearby: ``sdcnet.edge_paste``), within the
    box holding the mask alone (``mask_box``). Outside the crop the answer is background;
@@ -646,6 +647,34 @@ def vouched_mask(prob: np.ndarray, sparse: np.ndarray, threshold: float) -> np.n
     return mask
 
 
+def join_returns_beside(
+    mask: np.ndarray, prob: np.ndarray, rows: np.ndarray, cols: np.ndarray, threshold: float
+) -> None:
+    """``mask`` (bool (h, w), a crop's answer at the frame's resolution) with the returns at
+    pixels ``rows``, ``cols`` of the crop that lie within ``RETURN_REACH_PX`` of it joined to
+    it, and ``prob`` (float32 (h, w)) just above ``threshold`` on them, so that the mask stays
+    ``prob > threshold``; both changed in place.
+
+    Such a return vouched for the part beside it (``drop_specks``) and lies on the spacecraft,
+    where the mask missed its pixel by one: a truss member, a boom's edge. Without it the part
+    is a fragment holding no return; with it, the part holds the return that vouched for it.
+    On the robustness suite 79-89 % of the pixels joined were the spacecraft's, their depth
+    within 5 cm of the truth (mean, docking); the false specks a frame fell from 0.12-0.33 to
+    0.00-0.04 in every condition, and from 0.68 to 0.01 on 100 new docking frames
+    (docs/development.md, "Measurements"). Only the returns off the mask are looked at, and
+    only their neighbours: a 2048 x 2048 crop's maps are not passed over again."""
+    off = ~mask[rows, cols]
+    rows, cols = rows[off], cols[off]
+    (h, w), reach = mask.shape, RETURN_REACH_PX
+    beside = np.zeros(len(rows), bool)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            beside |= mask[np.clip(rows + dy, 0, h - 1), np.clip(cols + dx, 0, w - 1)]
+    rows, cols = rows[beside], cols[beside]
+    mask[rows, cols] = True
+    prob[rows, cols] = np.nextafter(np.float32(threshold), np.float32(1))
+
+
 def on_mask(window: np.ndarray, mask: np.ndarray, box: Region) -> np.ndarray:
     """A map of ``mask``'s shape (the frame's, (H, W)), 0 off the mask, holding ``window`` (the
     map's values within ``box``, which holds all of ``mask``'s pixels) on it."""
@@ -660,7 +689,7 @@ class WorkingInputs:
     [0, 1], sparse float32 (h, w) metres, the focal length in working pixels; and where the
     LIDAR's field cut the spacecraft (frame pixels; None where it did not, or where the crop
     was given); the frame pixels of the returns' convex hull, as ``frame_work_pixels`` counts
-    them."""
+    them; the pixels (rows, columns) of the returns in the crop, in its own pixels."""
 
     gray: np.ndarray
     sparse: np.ndarray
@@ -668,6 +697,7 @@ class WorkingInputs:
     grid: WorkingGrid
     cuts: FieldCuts | None = None
     hull_pixels: float = 0.0
+    crop_returns: tuple[np.ndarray, np.ndarray] = (np.empty(0, np.intp), np.empty(0, np.intp))
 
 
 def working_inputs(
@@ -708,6 +738,7 @@ def working_inputs(
         grid,
         cuts,
         hull_pixels,
+        (rows - g.y0, cols - g.x0),
     )
 
 
@@ -848,7 +879,10 @@ def complete_on(
         mask_crop = vouched_mask(prob_crop, sparse[crop], threshold)
     else:
         prob_crop = resample_image(prob_w, shape)
+        # the crop's own probability: the working grid's stays the network's
+        prob_crop = prob_crop.copy() if grid.identity else prob_crop
         mask_crop = kept if grid.identity else prob_crop > threshold
+    join_returns_beside(mask_crop, prob_crop, *inputs.crop_returns, threshold)
     # The frame's answer, 0 off the mask: depth and sigma resampled within the mask's box alone
     box = mask_box(mask_crop)
     at = box.within(grid.region)

@@ -22,6 +22,7 @@ from sdcnet.pipeline import (
     grown_past_sides,
     guide_gain,
     guided_probability,
+    join_returns_beside,
     mask_box,
     nearest_resampled,
     region_around,
@@ -552,6 +553,47 @@ def test_drop_specks_keeps_the_components_within_reach_of_a_return(specks, reach
     expected = np.isin(labels, list(vouched))
     assert 0 < expected.sum() < mask.sum()
     assert np.array_equal(drop_specks(mask, sparse, reach), expected)
+
+
+def test_returns_beside_the_mask_are_joined_to_it_and_no_other():
+    """A return one pixel off the mask (a truss member whose pixel the mask missed, beside the
+    fragment it vouched for) joins the mask, with a probability just over the threshold; a
+    return two pixels off, or on the mask already, changes nothing."""
+    mask = np.zeros((60, 60), bool)
+    mask[20:30, 20:30] = True  # a part
+    mask[40, 40] = True  # a fragment of one pixel beside a return
+    sparse = np.zeros(mask.shape, np.float32)
+    sparse[41, 41] = 9.0  # diagonal to the fragment: within reach
+    sparse[25, 30] = 9.0  # beside the part's right edge
+    sparse[25, 25] = 9.0  # on the part
+    sparse[10, 25] = 9.0  # ten pixels above the part: beyond reach
+    sparse[20, 31] = 9.0  # two pixels off: beyond reach
+    mask[58, 58] = True
+    sparse[59, 59] = 9.0  # in the crop's corner, diagonal to the mask
+    mask[0, 57] = True
+    sparse[0, 59] = 9.0  # on the crop's top edge, two pixels off
+    prob = np.where(mask, np.float32(0.9), np.float32(0.2))
+    before = mask.copy()
+    join_returns_beside(mask, prob, *np.nonzero(sparse), 0.5)
+    assert mask[41, 41] and mask[25, 30] and mask[59, 59]
+    assert (mask ^ before).sum() == 3
+    assert np.array_equal(prob > 0.5, mask)
+    assert 0.5 < prob[41, 41] < 0.5001
+    empty, low = np.zeros_like(mask), np.zeros_like(prob)
+    join_returns_beside(empty, low, *np.nonzero(sparse), 0.5)
+    assert not empty.any() and not low.any()
+
+
+def test_complete_joins_a_return_its_mask_missed_by_a_pixel():
+    """A return one pixel past the panel's outline, which the stand-in network's mask leaves
+    out: the answer holds the return, with the depth beside it, and the probability agrees
+    with the mask."""
+    gray, sparse = frame()
+    sparse[600, 500] = 120.0  # the panel's last row is 599
+    result = complete(bright_model([]), gray, sparse, FX, stride=64)
+    assert result.mask[600, 500] and not result.mask[600, 499] and not result.mask[601, 500]
+    assert result.depth[600, 500] > 0
+    assert np.array_equal(result.probability > 0.5, result.mask)
 
 
 @pytest.mark.parametrize("specks", [40, 400])
