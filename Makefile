@@ -104,9 +104,11 @@ docker-check: $(STAMP)
 ## recipe once more, on 2058 new frames drawn in both render styles (data/mixed-s62, seed 62,
 ## --styles ours pbr; 59 min to render beside other work), averaged with the tenth. The twelfth
 ## to the fourteenth repeat it with frames of the weakest worlds drawn apart beside the earlier
-## rounds' (the comments below); the fifteenth (shipped) is the mean of the fourteenth, counted
+## rounds' (the comments below); the fifteenth is the mean of the fourteenth, counted
 ## twice, and two fine-tunes of it: on new frames of the flash, docking, wide-multibeam and
-## `any` worlds (seed 67), and on those with the earth and sun-moon worlds' beside them.
+## `any` worlds (seed 67), and on those with the earth and sun-moon worlds' beside them. The
+## sixteenth (shipped) is the same mean once more: the fifteenth counted twice and two
+## fine-tunes of it on the second of those sets at lr 1e-4 (seeds 68 and 69).
 .PHONY: model
 PRESET ?= cpu
 PREVIOUS ?= e6a386e
@@ -156,6 +158,9 @@ FITS65 := $(FSNET_FINETUNE) --data data/hard-s65 --init-weights runs/twelfth/shi
 FITS66 := $(FSNET_FINETUNE) --data data/hard-s66 --init-weights runs/thirteenth/shipped.pt
 # the fifteenth: two fine-tunes of the fourteenth on new frames of six worlds drawn apart
 FITS67 := $(FSNET_FINETUNE) --init-weights runs/fourteenth/shipped.pt --lr 3e-4 --seed 67
+# the sixteenth: two fine-tunes of the fifteenth on the second of those sets at a third the rate
+FITS68 := $(FSNET_FINETUNE) --data data/hard2-s67 --init-weights runs/fifteenth/shipped.pt \
+	--lr 1e-4
 # the frames of one world alone for those fine-tunes: one view of each of 800 new models, both
 # render styles; each round gives the world, the seed and the folder
 WORLD_FRAMES := $(VENV)/bin/sdc-data generate --models 800 --views 1 --size 1024 \
@@ -282,6 +287,12 @@ model: $(STAMP)
 	# the fourteenth counted twice: half the mean, each fine-tune a quarter
 	$(VENV)/bin/sdc-train average --checkpoints runs/fourteenth/shipped.pt \
 		runs/fourteenth/shipped.pt runs/s67a/best_stage1.pt runs/s67b/best_stage1.pt \
+		--out runs/fifteenth/shipped.pt
+	$(FITS68) --out runs/s68a --seed 68
+	$(FITS68) --out runs/s69a --seed 69 --fsnet-epochs 6
+	# the fifteenth counted twice again
+	$(VENV)/bin/sdc-train average --checkpoints runs/fifteenth/shipped.pt \
+		runs/fifteenth/shipped.pt runs/s68a/best_stage1.pt runs/s69a/best_stage1.pt \
 		--out models/sdcnet.pt
 	$(MAKE) reports
 
