@@ -50,6 +50,7 @@ from sdcnet.anchoring import Anchored, anchor_to_returns, anchored_sigma, spread
 from sdcnet.caveats import crop_sides_reached, mask_iou_estimate, reaches_crop_side
 from sdcnet.edge_paste import paste_across_edges
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
+from sdcnet.lit_extent import lit_box
 from sdcnet.returns import return_pixels, scatter_nearest
 from sdcnet.surface import smoothed_between_returns
 
@@ -179,11 +180,20 @@ def spacecraft_region(
 ) -> tuple[Region, FieldCuts | None]:
     """Region holding the spacecraft whose returns lie at pixel ``rows``, ``cols`` of the frame
     ``gray``, ``spacing`` pixels apart (``return_spacing``): ``region_around`` them, grown
-    ``past_field_edges`` where the LIDAR's field cut the spacecraft; and those cuts (None where
-    there is none)."""
+    ``past_field_edges`` where the LIDAR's field cut the spacecraft and to the bright region
+    joined to them under a dark sky (``sdcnet.lit_extent``); and those cuts (None where there
+    is none)."""
     region = region_around(rows, cols, gray.shape, spacing)
     cuts = None if spacing is None else field_cuts(rows, cols, gray, spacing)
-    return (region, None) if cuts is None else (past_field_edges(region, cuts, gray.shape), cuts)
+    if cuts is not None:
+        region = past_field_edges(region, cuts, gray.shape)
+    lit = lit_box(rows, cols, gray, (region.y0, region.y1, region.x0, region.x1))
+    if lit is not None:
+        y0, y1, x0, x1 = lit
+        region = Region(
+            min(region.y0, y0), max(region.y1, y1), min(region.x0, x0), max(region.x1, x1)
+        )
+    return region, cuts
 
 
 def region_around(

@@ -32,6 +32,15 @@ def doubtful_model(gray: np.ndarray, sparse: np.ndarray, focal_px: np.ndarray):
     return np.full_like(gray, 100.0), prob[None, None]
 
 
+def under_the_earth(gray: np.ndarray) -> np.ndarray:
+    """``gray`` with the Earth's limb bright across the top of the frame, apart from the
+    spacecraft: the sky is not dark, so the crop stays the returns' own
+    (``sdcnet.lit_extent``)."""
+    earth = gray.copy()
+    earth[:100] = 150
+    return earth
+
+
 def test_a_well_covered_frame_has_none():
     assert caveats_of(*frame()) == []
 
@@ -42,9 +51,12 @@ def test_a_frame_with_few_returns_says_so():
     assert caveats_of(gray, sparse) == []
     sparse[:, 420:] = 0  # the same spacecraft, a handful of its returns left
     assert 0 < np.count_nonzero(sparse) < FEW_RETURNS
-    # ... on its left end: the rest of it, in sight, runs past the crop around them, and a
-    # second look past that crop's side answers all of it
+    # ... on its left end: the rest of it, in sight, runs past the crop around them: under a
+    # dark sky the crop grows to hold it, and under the Earth a second look past that crop's
+    # side answers all of it
     result = complete(bright_model([]), gray, sparse, FX, stride=64)
+    assert result.beyond is None and result.mask[400:600, 300:700].all()
+    result = complete(bright_model([]), under_the_earth(gray), sparse, FX, stride=64)
     assert result.beyond is not None and result.mask[400:600, 300:700].all()
     assert caveats_of(gray, sparse) == ["few_returns"]
     gray[:, 420:] = 0  # a spacecraft as small as its returns say
@@ -61,12 +73,12 @@ def test_a_lidar_field_ending_across_the_spacecraft_says_so():
 
 def test_a_mask_that_reaches_the_side_of_its_crop_says_so():
     """The LIDAR hit a bus (rows 400-600, columns 300-500) and not the boom bright beside it
-    (columns 500-1000): the crop is the bus's with a margin, and the mask, following the
-    image, fills it to its right side. Where the frame's own border is that side, nothing
-    is said: the frame, not the crop, cut the spacecraft."""
+    (columns 500-1000), the Earth in the frame: the crop is the bus's with a margin, and the
+    mask, following the image, fills it to its right side. Where the frame's own border is
+    that side, nothing is said: the frame, not the crop, cut the spacecraft."""
     gray, sparse = frame(box=(400, 600, 300, 500))
     assert caveats_of(gray, sparse) == []
-    boom = gray.copy()
+    boom = under_the_earth(gray)  # under a dark sky the crop would hold the boom
     boom[480:520, 500:1000] = 200
     result = complete(bright_model([]), boom, sparse, FX, stride=64)
     assert result.region.x1 < 1000  # the crop ends before the boom does

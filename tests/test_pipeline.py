@@ -30,10 +30,12 @@ from sdcnet.pipeline import (
     resample_depth,
     resample_image,
     resample_sparse,
+    return_pixels,
     return_spacing,
     row_ends,
     second_look_pixels,
     source_indices,
+    spacecraft_region,
     vouched_mask,
     working_grid,
     working_inputs,
@@ -122,7 +124,10 @@ def test_the_region_grows_where_the_field_cuts_across_part_of_the_spacecraft():
     assert grown.x1 == min(1024, round(ended.x1 + FIELD_EDGE_GROWTH * width)) == 1024
     assert ended.x1 < 700
     narrow_gray, narrow_sparse = panel_past_the_field((450, 550))
-    assert region_of_interest(narrow_gray, narrow_sparse).x1 < 700
+    rows, cols = return_pixels(narrow_sparse)
+    narrow, cuts = spacecraft_region(rows, cols, narrow_gray, return_spacing(rows, cols))
+    assert cuts is None, "no cut: the crop is not grown past the field ..."
+    assert narrow.x1 >= 1000, "... but to the panel the image shows bright (sdcnet.lit_extent)"
 
 
 def test_complete_runs_on_the_crop_and_pastes_back():
