@@ -87,6 +87,13 @@ def _covered(along: np.ndarray, spacing: float, length: int) -> float:
     return np.unique((along // spacing).astype(np.intp)).size * spacing / length
 
 
+def bright_level(gray: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> float:
+    """The gray level (``gray``'s units) above which the frame ``gray`` is as bright as a part
+    of the spacecraft may be: ``FIELD_EDGE_BRIGHTNESS`` of the median at its returns (pixel
+    ``rows``, ``cols``; at least one)."""
+    return FIELD_EDGE_BRIGHTNESS * float(np.median(gray[rows, cols]))
+
+
 def field_cuts(
     rows: np.ndarray, cols: np.ndarray, gray: np.ndarray, spacing: float
 ) -> FieldCuts | None:
@@ -98,7 +105,7 @@ def field_cuts(
     h, w = y1 - y0, x1 - x0
     if min(h, w) <= 2 * spacing:
         return None
-    threshold = FIELD_EDGE_BRIGHTNESS * float(np.median(gray[rows, cols]))
+    threshold = bright_level(gray, rows, cols)
     near, far = round(spacing), max(round(FIELD_EDGE_BAND_SPACINGS * spacing), round(spacing) + 2)
 
     def cut(along: np.ndarray, length: int, beyond) -> bool:

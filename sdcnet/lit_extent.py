@@ -28,7 +28,7 @@ import math
 import cv2
 import numpy as np
 
-from sdcnet.field_edges import FIELD_EDGE_BRIGHTNESS, LOOSE_BRIGHT_SHARE, SKY_SAMPLES
+from sdcnet.field_edges import LOOSE_BRIGHT_SHARE, SKY_SAMPLES, bright_level
 
 #: The bright region may reach outside the crop by at most this many times its part inside ...
 MAX_BEYOND = 2.0
@@ -42,23 +42,21 @@ def lit_box(
     """The frame box (rows ``y0:y1``, columns ``x0:x1``) of the bright region joined to the
     returns at pixels ``rows``, ``cols`` of the frame ``gray`` (H, W, any dtype), where it
     reaches past the ``crop`` (y0, y1, x0, x1) and the conditions of this module hold; None
-    otherwise. Bright: above ``FIELD_EDGE_BRIGHTNESS`` of the median gray at the returns. On a
+    otherwise. Bright: above ``sdcnet.field_edges.bright_level``, as past a field's edge. On a
     regular sample of about ``SKY_SAMPLES`` of the frame's pixels (a millisecond or two at
     2048 x 2048), so the box is a sample's step (pixels) wider on each side."""
     if len(rows) == 0:
         return None
     H, W = gray.shape
     step = max(1, math.ceil(math.sqrt(H * W / SKY_SAMPLES)))
-    sample = np.ascontiguousarray(gray[::step, ::step])
-    threshold = FIELD_EDGE_BRIGHTNESS * float(np.median(gray[rows, cols]))
-    bright = cv2.compare(sample, threshold, cv2.CMP_GT)
+    sample = gray[::step, ::step]
+    bright = (sample > bright_level(gray, rows, cols)).view(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=8)
-    h, w = sample.shape
-    held = np.zeros(count, bool)  # the components a return lies on or beside (one sample)
-    r, c = rows // step, cols // step
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            held[labels[np.clip(r + dy, 0, h - 1), np.clip(c + dx, 0, w - 1)]] = True
+    returns = np.zeros(sample.shape, np.uint8)  # the samples a return lies on or beside
+    returns[rows // step, cols // step] = 1
+    returns = cv2.dilate(returns, np.ones((3, 3), np.uint8))
+    held = np.zeros(count, bool)  # the components those samples touch
+    held[labels[returns > 0]] = True
     held[0] = False
     if not held.any():
         return None
