@@ -143,9 +143,11 @@ def summary(result: Completion, url: str, written: list[Path]) -> str:
     thinned = f"; one per {stride} px in rows and columns" if stride > 1 else ""
     iou = meta.get("mask_iou_estimate")
     estimate = f", IOU {100 * iou:.1f} % as the network expects it" if iou is not None else ""
+    strays = meta.get("stray_returns", 0)
+    left_out = f" ({strays} left out as strays)" if strays else ""
     lines = [
         f"sdcnet {result.model_version} on {result.provider} at {url}",
-        f"  image     {width} x {height}, {meta.get('returns', '?')} LIDAR returns",
+        f"  image     {width} x {height}, {meta.get('returns', '?')} LIDAR returns{left_out}",
         f"  mask      {int(result.mask.sum()):,} px ({100 * result.mask.sum() / pixels:.1f} %)"
         f"{estimate}",
         f"  depth     {depth}",

@@ -51,7 +51,8 @@ from sdcnet.caveats import crop_sides_reached, mask_iou_estimate, reaches_crop_s
 from sdcnet.edge_paste import paste_across_edges
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field, sky_is_dark
 from sdcnet.lit_extent import lit_box
-from sdcnet.returns import return_pixels, scatter_nearest
+from sdcnet.returns import return_pixels, return_spacing, scatter_nearest
+from sdcnet.stray_returns import without_strays
 from sdcnet.surface import smoothed_between_returns
 
 ModelFn = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]
@@ -139,33 +140,10 @@ class WorkingGrid:
         return self.shape == self.region.shape
 
 
-#: Margin around fewer than ``MIN_RETURNS_FOR_SPACING`` returns (or returns on one line): this
-#: fraction of the frame's longer side, since they cannot tell how large the spacecraft is.
+#: Margin around returns without a spacing (fewer than ``sdcnet.returns.MIN_RETURNS_FOR_SPACING``
+#: or on one line): this fraction of the frame's longer side, since they cannot tell how large
+#: the spacecraft is.
 FEW_RETURNS_MARGIN = 0.15
-MIN_RETURNS_FOR_SPACING = 3
-
-
-def return_spacing(rows: np.ndarray, cols: np.ndarray) -> float | None:
-    """Typical distance between neighbouring returns, pixels: the square root of the area of
-    the returns' convex hull per return (a grid of spacing a x b gives sqrt(a b)); None for
-    fewer than ``MIN_RETURNS_FOR_SPACING`` returns or returns on one line."""
-    if len(rows) < MIN_RETURNS_FOR_SPACING:
-        return None
-    area = cv2.contourArea(cv2.convexHull(row_ends(rows, cols)))
-    return math.sqrt(area / len(rows)) if area > 0 else None
-
-
-def row_ends(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """The leftmost and rightmost of the pixels (``rows``, ``cols``) in each of their rows, as
-    (x, y) float32 points: they have the same convex hull as all of them, and a dense LIDAR's
-    128k returns take 13 ms to hull where their 3k row ends take 1.6."""
-    if np.any(rows[1:] < rows[:-1]):  # row-major order, as return_pixels gives them
-        order = np.argsort(rows, kind="stable")
-        rows, cols = rows[order], cols[order]
-    starts = np.flatnonzero(np.diff(rows, prepend=rows[0] - 1))
-    ends = (np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts))
-    ys = np.concatenate([rows[starts], rows[starts]])
-    return np.stack([np.concatenate(ends), ys], 1).astype(np.float32)
 
 
 def region_of_interest(gray: np.ndarray, sparse: np.ndarray) -> Region:
@@ -521,6 +499,8 @@ class Completion:
     #: whose working grid answers outside ``grid``'s crop (its frame-wide maps are this
     #: answer's); None where there was none
     beyond: Completion | None = None
+    #: the returns left out as strays, alone far from the rest (``sdcnet.stray_returns``)
+    stray_returns: int = 0
 
     @property
     def region(self) -> Region:
@@ -839,10 +819,12 @@ def complete(
     frame's budget has room left (``second_look_pixels``), look again at the crop grown past
     those sides, on a coarser grid, and answer from that look beyond the first crop
     (``with_second_look``). A 12-bit frame in a 16-bit image's low bits is read as in its top
-    bits (``in_top_bits``)."""
+    bits (``in_top_bits``). Stray returns, alone far from the rest, are left out first
+    (``sdcnet.stray_returns``): the answer counts them."""
     gray = in_top_bits(gray)
+    sparse, strays = without_strays(sparse)
     inputs = working_inputs(gray, sparse, focal_px, stride, work_pixels, frame_share=frame_share)
-    first = complete_on(model, gray, sparse, inputs, threshold)
+    first = replace(complete_on(model, gray, sparse, inputs, threshold), stray_returns=strays)
     if not first.crop_cut:
         return first
     sides = crop_sides_reached(first.mask_crop, first.region, gray.shape)

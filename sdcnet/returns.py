@@ -17,6 +17,7 @@ On disk, a CSV file with the header ``row,col,z_m`` and one return per line, e.g
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -146,6 +147,33 @@ def return_pixels(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.empty(0, np.intp), np.empty(0, np.intp)
     xy = found.reshape(-1, 2)
     return xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
+
+
+#: Fewer returns (or returns on one line) give no spacing.
+MIN_RETURNS_FOR_SPACING = 3
+
+
+def return_spacing(rows: np.ndarray, cols: np.ndarray) -> float | None:
+    """Typical distance between neighbouring returns, pixels: the square root of the area of
+    the returns' convex hull per return (a grid of spacing a x b gives sqrt(a b)); None for
+    fewer than ``MIN_RETURNS_FOR_SPACING`` returns or returns on one line."""
+    if len(rows) < MIN_RETURNS_FOR_SPACING:
+        return None
+    area = cv2.contourArea(cv2.convexHull(row_ends(rows, cols)))
+    return math.sqrt(area / len(rows)) if area > 0 else None
+
+
+def row_ends(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The leftmost and rightmost of the pixels (``rows``, ``cols``) in each of their rows, as
+    (x, y) float32 points: they have the same convex hull as all of them, and a dense LIDAR's
+    128k returns take 13 ms to hull where their 3k row ends take 1.6."""
+    if np.any(rows[1:] < rows[:-1]):  # row-major order, as return_pixels gives them
+        order = np.argsort(rows, kind="stable")
+        rows, cols = rows[order], cols[order]
+    starts = np.flatnonzero(np.diff(rows, prepend=rows[0] - 1))
+    ends = (np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts))
+    ys = np.concatenate([rows[starts], rows[starts]])
+    return np.stack([np.concatenate(ends), ys], 1).astype(np.float32)
 
 
 def returns_from_dense(sparse: np.ndarray) -> np.ndarray:

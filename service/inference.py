@@ -239,6 +239,7 @@ class Completed:
             height=K.height,
             intrinsics=CameraIntrinsics(**K.pinhole_dict()),
             returns=self.returns,
+            stray_returns=self.completion.stray_returns,
             foreground_px=int(np.count_nonzero(self.mask)),
             point_count=len(self.points),
             cloud_stride=self.stride,

@@ -8,6 +8,7 @@ from typing import Any
 from pydantic import BaseModel, Field
 
 from sdcnet.caveats import CAVEATS, CROP_CUT_IOU_FACTOR, MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU
+from sdcnet.stray_returns import MIN_RETURNS_TO_JUDGE, STRAY_SPACINGS
 
 
 class ResponseFormat(StrEnum):
@@ -105,6 +106,12 @@ class FrameSummary(BaseModel):
     height: int = Field(description="image height, pixels")
     intrinsics: CameraIntrinsics = Field(description="used to back-project the points")
     returns: int = Field(description="LIDAR returns in the sparse map")
+    stray_returns: int = Field(
+        default=0,
+        description="of those, returns left out as strays: alone, more than "
+        f"{STRAY_SPACINGS:g} return spacings from any other (a flash array's dark counts, "
+        f"multipath), in a frame of at least {MIN_RETURNS_TO_JUDGE} returns",
+    )
     foreground_px: int = Field(description="pixels in the mask")
     point_count: int = Field(description="points in the cloud")
     cloud_stride: int = Field(

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sdcnet.field_edges import FieldCuts, field_cuts, grown_past_field
-from sdcnet.pipeline import complete, return_pixels, return_spacing
+from sdcnet.pipeline import complete
+from sdcnet.returns import return_pixels, return_spacing
 
 FX = 7939.2
 

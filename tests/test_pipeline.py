@@ -32,7 +32,6 @@ from sdcnet.pipeline import (
     resample_sparse,
     return_pixels,
     return_spacing,
-    row_ends,
     second_look_pixels,
     source_indices,
     spacecraft_region,
@@ -40,6 +39,7 @@ from sdcnet.pipeline import (
     working_grid,
     working_inputs,
 )
+from sdcnet.returns import row_ends
 
 FX = 7939.2
 

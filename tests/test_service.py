@@ -261,6 +261,18 @@ def test_a_frame_round_trips_and_matches_onnxruntime(client, model_path):
     assert "inference;dur=" in response.headers["server-timing"]
 
 
+def test_stray_returns_are_left_out_and_counted(client):
+    s = frame()
+    clean = post(client, frame_files()).json()
+    noisy_sparse = s.sparse.copy()
+    noisy_sparse[5, 250] = noisy_sparse[250, 5] = 100.0  # alone in the sky, far from the craft
+    noisy = post(client, frame_files(sparse=npy_bytes(noisy_sparse))).json()
+    assert clean["stray_returns"] == 0 and noisy["stray_returns"] == 2
+    assert noisy["returns"] == clean["returns"] + 2
+    for key in ("mask", "depth"):
+        np.testing.assert_array_equal(decoded(noisy[key]), decoded(clean[key]))
+
+
 def test_intrinsics_are_those_of_a_pinhole_of_the_frame_or_422(client):
     """Focal lengths from a 150 degree field of view (34.3 px across 256) to 1e9 px are
     served at the fixed cost of a frame; shorter ones, and a principal point far outside, get
