@@ -9,13 +9,16 @@ added at random sky pixels (a scratch script through ``sdcnet.pipeline.complete`
 1.3-14 points (earth 90.7 -> 82.7, narrow-far 90.3 -> 76.3, flash 81.3 -> 69.1); left out as
 strays here, 0.2-3.6 points (docs/development.md, "Measurements").
 
-A return is a stray when no other return lies within ``STRAY_SPACINGS`` return spacings of it
-(a square window, in pixels), the spacing (``sdcnet.returns.return_spacing``) measured on
-the largest group of returns (``main_group``) so that the strays themselves do not widen it.
-The spacing follows the LIDAR's pattern, so the same rule holds for a scanning grid, a
-multi-beam's rows and a flash array. A frame with fewer than ``MIN_RETURNS_TO_JUDGE``
-returns, or where more than ``MAX_STRAY_SHARE`` of them would be strays (a pattern too sparse
-to judge), keeps every return: there the strays cannot be told from a small part's returns.
+Returns join one group when a chain of returns links them, each within ``STRAY_SPACINGS``
+return spacings of the next (on a grid of cells: within 1.5 times that at most,
+``return_groups``); the returns of a group of fewer than ``MIN_GROUP_RETURNS`` are strays. The
+spacing (``sdcnet.returns.return_spacing``) is measured on the largest group of returns at a
+coarse scale (``main_group``) so that the strays themselves do not widen it, and it follows the
+LIDAR's pattern, so the same rule holds for a scanning grid, a multi-beam's rows and a flash
+array. A frame with fewer than ``MIN_RETURNS_TO_JUDGE`` returns, or where more than
+``MAX_STRAY_SHARE`` of them would be strays (a pattern too sparse to judge), keeps every
+return: there strays cannot be told from a small part's returns. A part of the spacecraft hit
+by one or two returns far from every other is taken for strays.
 """
 
 from __future__ import annotations
@@ -27,54 +30,48 @@ import numpy as np
 
 from sdcnet.returns import return_pixels, return_spacing
 
-#: A return with no other within this many return spacings (a square window) is a stray.
+#: Returns this many return spacings apart (or nearer) join one group.
 STRAY_SPACINGS = 4.0
 #: Frames with fewer returns keep them all: a few returns cannot tell a stray from a part.
 MIN_RETURNS_TO_JUDGE = 20
 #: Where more than this share of the returns would be strays, every return is kept.
 MAX_STRAY_SHARE = 0.5
+#: Returns in a group of fewer (joined within ``STRAY_SPACINGS`` of each other) are strays.
+MIN_GROUP_RETURNS = 3
 #: The groups of ``main_group``: returns in cells of 1/``GROUP_CELLS`` of the frame's longer
 #: side, cells that touch joined.
 GROUP_CELLS = 32
+#: The strays' groups are found on at most this many cells a side.
+MAX_CELLS = 512
+
+
+def return_groups(
+    rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int], cell: int, reach_cells: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The groups of the returns at pixel ``rows``, ``cols`` of a frame of ``shape``: the frame
+    cut into square cells of ``cell`` pixels, two returns in one group when a chain of returns
+    joins them whose cells lie at most ``2 * reach_cells + 1`` cells apart (each cell holding
+    returns grown by ``reach_cells``, then 8-connected). Returns each return's group label and
+    the returns in each group (indexed by label)."""
+    cell_rows, cell_cols = rows // cell, cols // cell
+    height, width = shape[0] // cell + 1, shape[1] // cell + 1
+    counts = np.bincount(cell_rows * width + cell_cols, minlength=height * width)
+    occupied = (counts > 0).astype(np.uint8).reshape(height, width)
+    if reach_cells:
+        side = 2 * reach_cells + 1
+        occupied = cv2.dilate(occupied, np.ones((side, side), np.uint8))
+    n, labels = cv2.connectedComponents(occupied, connectivity=8)
+    per_group = np.bincount(labels.ravel(), weights=counts, minlength=n).astype(np.int64)
+    return labels[cell_rows, cell_cols], per_group
 
 
 def main_group(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """bool per return (pixel ``rows``, ``cols`` of a frame of ``shape``): whether it belongs
-    to the group holding the most returns, the frame cut into square cells of
-    1/``GROUP_CELLS`` of its longer side and the cells holding returns joined where they touch
-    (8-connected). Strays far from the spacecraft fall in groups of their own."""
-    cell = max(1, max(shape) // GROUP_CELLS)
-    cell_rows, cell_cols = rows // cell, cols // cell
-    height, width = shape[0] // cell + 1, shape[1] // cell + 1
-    ids = cell_rows * width + cell_cols
-    counts = np.bincount(ids, minlength=height * width).reshape(height, width)
-    n, labels = cv2.connectedComponents((counts > 0).astype(np.uint8), connectivity=8)
-    per_group = np.bincount(labels.ravel(), weights=counts.ravel(), minlength=n)
-    per_group[0] = 0  # the cells without returns
-    return labels[cell_rows, cell_cols] == int(np.argmax(per_group))
-
-
-def neighbours_within(
-    rows: np.ndarray, cols: np.ndarray, half_px: float, shape: tuple[int, int]
-) -> np.ndarray:
-    """The returns (the return's own included) in a square window of about ``half_px`` pixels
-    each side of each return (pixel ``rows``, ``cols`` of a frame of ``shape``), int per return.
-    Counted on cells of a quarter of the window's half-size, so that a dense LIDAR's frame
-    costs a coarse grid's filter: the window holds every return within ``half_px`` and none
-    beyond 1.25 times it."""
-    cell = max(1, int(half_px // 4))
-    cell_rows, cell_cols = rows // cell, cols // cell
-    height, width = shape[0] // cell + 1, shape[1] // cell + 1
-    counts = np.bincount(cell_rows * width + cell_cols, minlength=height * width)
-    side = 2 * math.ceil(half_px / cell) + 1
-    window = cv2.boxFilter(
-        counts.reshape(height, width).astype(np.float32),
-        -1,
-        (side, side),
-        normalize=False,
-        borderType=cv2.BORDER_CONSTANT,
-    )
-    return np.rint(window[cell_rows, cell_cols]).astype(np.int64)
+    to the group holding the most returns, in cells of 1/``GROUP_CELLS`` of the frame's
+    longer side that touch (``return_groups``). Strays far from the spacecraft fall in groups
+    of their own."""
+    labels, per_group = return_groups(rows, cols, shape, max(1, max(shape) // GROUP_CELLS), 0)
+    return labels == int(np.argmax(per_group))
 
 
 def stray_returns(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -87,10 +84,15 @@ def stray_returns(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) ->
     spacing = return_spacing(rows[group], cols[group])
     if spacing is None:
         return none
-    alone = neighbours_within(rows, cols, STRAY_SPACINGS * spacing, shape) < 2
-    if np.count_nonzero(alone) > MAX_STRAY_SHARE * len(rows):
+    # cells of a quarter of the reach (at most MAX_CELLS a side): every return within the
+    # reach of another joins it, none beyond 1.5 times the reach
+    reach = STRAY_SPACINGS * spacing
+    cell = max(1, int(reach // 4), math.ceil(max(shape) / MAX_CELLS))
+    labels, per_group = return_groups(rows, cols, shape, cell, math.ceil((reach / cell - 1) / 2))
+    strays = per_group[labels] < MIN_GROUP_RETURNS
+    if np.count_nonzero(strays) > MAX_STRAY_SHARE * len(rows):
         return none
-    return alone
+    return strays
 
 
 def without_strays(sparse: np.ndarray) -> tuple[np.ndarray, int]:

@@ -5,6 +5,7 @@ import numpy as np
 from sdcnet.pipeline import complete
 from sdcnet.returns import return_pixels
 from sdcnet.stray_returns import (
+    MIN_GROUP_RETURNS,
     MIN_RETURNS_TO_JUDGE,
     STRAY_SPACINGS,
     stray_returns,
@@ -51,9 +52,19 @@ def test_a_small_part_with_a_few_returns_of_its_own_is_kept():
     assert strays_of(sparse) == {(60, 60)}
 
 
-def test_a_return_within_the_window_of_another_is_not_a_stray():
+def test_strays_near_each_other_far_from_the_spacecraft_are_strays_together():
+    _, sparse = frame()
+    pair = {(60, 60), (60, 75)}  # one return spacing apart, 250 px from the spacecraft's
+    for row, col in pair:
+        sparse[row, col] = 120.0
+    assert MIN_GROUP_RETURNS == 3 and strays_of(sparse) == pair
+    sparse[70, 65] = 120.0  # a third joins them: a group of three is a part
+    assert not strays_of(sparse)
+
+
+def test_a_return_within_reach_of_another_is_not_a_stray():
     _, sparse = frame()  # returns 18 x 12 px apart: a spacing of about 14.7 px
-    rows, cols = return_pixels(sparse)
+    rows, _ = return_pixels(sparse)
     near = int(rows.max()) + int(0.8 * STRAY_SPACINGS * 14.7)
     far = int(rows.max()) + int(2 * STRAY_SPACINGS * 14.7)
     sparse[near, 500] = sparse[far, 300] = 120.0
