@@ -93,3 +93,16 @@ def test_the_answer_with_strays_is_the_answer_without_them():
     assert noisy.stray_returns == 3 and clean.stray_returns == 0
     assert noisy.region == clean.region
     assert np.array_equal(noisy.mask, clean.mask) and np.array_equal(noisy.depth, clean.depth)
+
+
+def test_a_parts_lone_return_is_left_out_of_the_crop_but_still_anchors_its_depth():
+    gray, sparse = frame()
+    sparse[:, 500:] = 0  # the returns cover the left half of the spacecraft ...
+    sparse[500, 690] = 130.0  # ... and one more lies on its right end, 190 px from them
+    result = complete(bright_model([]), gray, sparse, FX, stride=64)
+    assert result.stray_returns == 1
+    assert result.mask[500, 690]  # the network's mask holds the part, the stray aside
+    assert abs(result.depth[500, 690] - 130.0) < 0.5  # anchored to it all the same
+    without = sparse.copy()
+    without[500, 690] = 0
+    assert abs(complete(bright_model([]), gray, without, FX, stride=64).depth[500, 690] - 130) > 5
