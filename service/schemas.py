@@ -8,7 +8,7 @@ from typing import Any
 from pydantic import BaseModel, Field
 
 from sdcnet.caveats import CAVEATS, CROP_CUT_IOU_FACTOR, MASK_IOU_EXPONENT, UNCERTAIN_MASK_IOU
-from sdcnet.stray_returns import MIN_RETURNS_TO_JUDGE, STRAY_SPACINGS
+from sdcnet.stray_returns import MIN_GROUP_RETURNS, MIN_RETURNS_TO_JUDGE, STRAY_SPACINGS
 
 
 class ResponseFormat(StrEnum):
@@ -108,9 +108,10 @@ class FrameSummary(BaseModel):
     returns: int = Field(description="LIDAR returns in the sparse map")
     stray_returns: int = Field(
         default=0,
-        description="of those, returns left out as strays: alone, more than "
-        f"{STRAY_SPACINGS:g} return spacings from any other (a flash array's dark counts, "
-        f"multipath), in a frame of at least {MIN_RETURNS_TO_JUDGE} returns",
+        description="of those, returns left out as strays: in groups of fewer than "
+        f"{MIN_GROUP_RETURNS}, more than {STRAY_SPACINGS:g} return spacings from any other "
+        f"(a flash array's dark counts, multipath), in a frame of at least "
+        f"{MIN_RETURNS_TO_JUDGE} returns",
     )
     foreground_px: int = Field(description="pixels in the mask")
     point_count: int = Field(description="points in the cloud")
