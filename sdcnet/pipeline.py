@@ -501,6 +501,9 @@ class Completion:
     beyond: Completion | None = None
     #: the returns left out as strays, alone far from the rest (``sdcnet.stray_returns``)
     stray_returns: int = 0
+    #: (H, W) float32 metres, 0 where none: the frame's returns the answer used, its strays
+    #: left out (the frame's own map where there were none); None where not recorded
+    used_returns: np.ndarray | None = None
 
     @property
     def region(self) -> Region:
@@ -850,7 +853,9 @@ def complete(
     inputs = working_inputs(
         gray, kept, focal_px, stride, work_pixels, frame_share=frame_share, anchors=anchors
     )
-    first = replace(complete_on(model, gray, kept, inputs, threshold), stray_returns=strays)
+    first = replace(
+        complete_on(model, gray, kept, inputs, threshold), stray_returns=strays, used_returns=kept
+    )
     if not first.crop_cut:
         return first
     sides = crop_sides_reached(first.mask_crop, first.region, gray.shape)

@@ -36,7 +36,6 @@ from sdcnet.service.pose_schemas import PoseAlternative, PoseResponse, PoseTimin
 from sdcnet.service.schemas import FrameSummary
 from sdcnet.service.settings import Settings
 from sdcnet.service.spool import Spool
-from sdcnet.stray_returns import without_strays
 from sdcnet.targets import Target, load_targets
 
 logger = logging.getLogger("sdcnet.service")
@@ -206,8 +205,8 @@ def answer_pose(
         engine, frame, timer, cloud_phase="cloud", sigma_quantile=POSE_SIGMA_QUANTILE
     )
     with timer("cloud"):
-        kept, _ = without_strays(frame.sparse)  # as the completion left them out
-        returns = back_project(kept, kept > 0, done.intrinsics)
+        used = done.completion.used_returns  # the completion's, its strays left out
+        returns = back_project(used, used > 0, done.intrinsics)
     with timer("registration"):
         try:
             estimate = estimate_pose(target.model, done.points, returns, init, done.intrinsics)

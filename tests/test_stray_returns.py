@@ -93,6 +93,8 @@ def test_the_answer_with_strays_is_the_answer_without_them():
     assert noisy.stray_returns == 3 and clean.stray_returns == 0
     assert noisy.region == clean.region
     assert np.array_equal(noisy.mask, clean.mask) and np.array_equal(noisy.depth, clean.depth)
+    # the answer records the returns it used: what POST /pose registers the cloud to
+    assert np.array_equal(noisy.used_returns, sparse) and clean.used_returns is sparse
 
 
 def test_a_parts_lone_return_is_left_out_of_the_crop_but_still_anchors_its_depth():
