@@ -502,7 +502,8 @@ class Completion:
     #: the returns left out as strays, alone far from the rest (``sdcnet.stray_returns``)
     stray_returns: int = 0
     #: (H, W) float32 metres, 0 where none: the frame's returns the answer used, its strays
-    #: left out (the frame's own map where there were none); None where not recorded
+    #: left out (the frame's own map where there were none); None only for an answer made
+    #: outside ``complete_on``
     used_returns: np.ndarray | None = None
 
     @property
@@ -853,9 +854,7 @@ def complete(
     inputs = working_inputs(
         gray, kept, focal_px, stride, work_pixels, frame_share=frame_share, anchors=anchors
     )
-    first = replace(
-        complete_on(model, gray, kept, inputs, threshold), stray_returns=strays, used_returns=kept
-    )
+    first = replace(complete_on(model, gray, kept, inputs, threshold), stray_returns=strays)
     if not first.crop_cut:
         return first
     sides = crop_sides_reached(first.mask_crop, first.region, gray.shape)
@@ -934,6 +933,7 @@ def complete_on(
         inputs.cuts,
         mask_iou_estimate(prob_w, mask_w, crop_cut),
         crop_cut,
+        used_returns=sparse,
     )
 
 
